@@ -1,0 +1,58 @@
+"""CPU engine: the single-source kernels compiled by numba, parallel over elements (prange)."""
+from __future__ import annotations
+
+import numpy as np
+
+from geodem.backends import register
+from geodem.backends.kernels import make_kernels
+from geodem.core.state import BROKEN_BASE
+
+
+class HostBackend:
+    """Shared part of the backends whose arrays are the state's own NumPy arrays."""
+
+    def attach(self, state):
+        self.s = state
+        self.e_el = np.zeros(state.n)
+
+    def pull(self, names=None):  # arrays are shared with the state
+        pass
+
+    def push(self, names=None):
+        if self.e_el.shape[0] != self.s.n:
+            self.e_el = np.zeros(self.s.n)
+
+    def has_new_cracks(self):
+        return bool((self.s.cstate >= BROKEN_BASE).any())
+
+    @staticmethod
+    def is_available():
+        return True
+
+    @staticmethod
+    def why_not():
+        return ""
+
+
+@register("numba")
+class NumbaBackend(HostBackend):
+    def attach(self, state):
+        super().attach(state)
+        self.k_move, self.k_force, self.k_energy = make_kernels(state.dim, "cpu")
+
+    def move(self, dt):
+        s = self.s
+        self.k_move(s.x, s.v, s.a, s.dx, s.free, s.fload, s.m, s.eta, s.q_visc, s.w_ext, dt)
+
+    def force(self, dt, code_t, code_s):
+        s = self.s
+        g = s.gravity
+        self.k_force(s.x, s.v, s.a, s.dx, s.free, s.fload, s.r, s.m, s.kn, s.ks, s.xb, s.fs0,
+                     s.mu, s.eta, s.nbr, s.cstate, s.fs, s.brate, s.q_visc, s.q_break_n,
+                     s.q_break_s, s.q_fric, s.w_ext, g[0], g[1], g[2] if s.dim == 3 else 0.0,
+                     dt, code_t, code_s, int(s.hertz))
+
+    def elastic_energy(self):
+        s = self.s
+        self.k_energy(s.x, s.r, s.kn, s.ks, s.nbr, s.cstate, s.fs, int(s.hertz), self.e_el)
+        return self.e_el

@@ -1,0 +1,156 @@
+"""Readable reference engine in MatDEM's whole-matrix style (NumPy, op by op).
+
+Every neighbour quantity is an ``(N, W)`` matrix gathered through ``nbr``; the contact law of
+``geodem.core.law`` is restated with masks instead of branches. It is slow by design (it moves
+tens of kilobytes per element-step) and exists so the compiled kernels have something plain to be
+checked against: the tests hold the backends to 1e-12 and identical bond decisions.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from geodem.backends import register
+from geodem.backends.numba_backend import HostBackend
+from geodem.core.state import BONDED
+
+
+def _series(a, b):
+    s = a + b
+    return np.where(s > 0.0, a * b / np.where(s > 0.0, s, 1.0), 0.0)
+
+
+def _spring(f2, k):
+    return np.where(k > 0.0, 0.5 * f2 / np.where(k > 0.0, k, 1.0), 0.0)
+
+
+def _colsum(mat):
+    """Sum over the neighbour columns in row order (the order the kernels use)."""
+    out = np.zeros(mat.shape[0])
+    for k in range(mat.shape[1]):
+        out = out + mat[:, k]
+    return out
+
+
+@register("numpy")
+class NumpyBackend(HostBackend):
+    def move(self, dt):
+        s = self.s
+        fr = s.free != 0.0
+        ddx = np.where(fr, dt * s.v + 0.5 * dt * dt * s.a, dt * s.v)
+        s.q_visc += (np.where(fr, 0.5 * s.eta[:, None] * s.v * ddx, 0.0)).sum(axis=1)
+        s.w_ext += np.where(fr, s.fload * ddx, -(0.5 * s.m[:, None] * s.a * ddx)).sum(axis=1)
+        s.dx[:] = ddx
+        s.x += ddx
+
+    def _geometry(self):
+        s = self.s
+        valid = s.nbr >= 0
+        j = np.where(valid, s.nbr, np.arange(s.n)[:, None])
+        d = s.x[j] - s.x[:, None, :]
+        dist2 = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]
+        if s.dim == 3:
+            dist2 = dist2 + d[..., 2] * d[..., 2]
+        dist = np.where(valid, np.sqrt(dist2), 1.0)
+        return valid, j, d, dist
+
+    def force(self, dt, code_t, code_s):
+        s = self.s
+        valid, j, d, dist = self._geometry()
+        inv = 1.0 / dist
+        n = d * inv[..., None]
+        rel = s.dx[j] - s.dx[:, None, :]
+        xn = dist - (s.r[:, None] + s.r[j])
+        kn = _series(s.kn[:, None], s.kn[j])
+        ks = _series(s.ks[:, None], s.ks[j])
+        mu = np.minimum(s.mu[:, None], s.mu[j])
+        rate = s.brate.astype(np.float64)
+
+        sh = s.fs
+        p = (n * sh).sum(-1)
+        old2 = (sh * sh).sum(-1)
+        rot = sh - p[..., None] * n
+        rot2 = (rot * rot).sum(-1)
+        qf = _spring(old2 - rot2, ks)
+        pr = (n * rel).sum(-1)
+        trial = rot + ks[..., None] * (rel - pr[..., None] * n)
+        tr2 = (trial * trial).sum(-1)
+
+        bonded = valid & (s.cstate == BONDED)
+        fn_b = kn * xn
+        bf = rate * np.minimum(s.kn[:, None] * s.xb[:, None], s.kn[j] * s.xb[j])
+        tens = bonded & (fn_b >= bf)
+        fsmax = rate * np.minimum(s.fs0[:, None], s.fs0[j]) - mu * fn_b
+        shr = bonded & ~tens & ((fsmax < 0.0) | (tr2 > fsmax * fsmax))
+        shr_t = shr & (fn_b >= 0.0)
+        shr_c = shr & (fn_b < 0.0)
+        intact = bonded & ~tens & ~shr
+
+        unb = valid & ~bonded
+        apart = unb & (xn >= 0.0)
+        comp = unb & (xn < 0.0)
+        if s.hertz:
+            e_i = s.kn[:, None] / (np.pi * s.r[:, None])
+            e_j = s.kn[j] / (np.pi * s.r[j])
+            ov = np.where(comp, -xn, 0.0)
+            fn_u = -(4.0 / 3.0) * _series(e_i, e_j) * np.sqrt(_series(s.r[:, None], s.r[j])) \
+                * ov * np.sqrt(ov)
+        else:
+            fn_u = kn * xn
+        lim_u = -mu * fn_u
+        slide = comp & (tr2 > lim_u * lim_u)
+
+        safe_tr = np.where(tr2 > 0.0, np.sqrt(np.where(tr2 > 0.0, tr2, 1.0)), 1.0)
+        lim_b = -mu * fn_b
+        scale = np.where(shr_c, lim_b / safe_tr, 1.0)
+        scale = np.where(slide, np.where(tr2 > 0.0, lim_u / safe_tr, 0.0), scale)
+        scale = np.where(tens | shr_t | apart | ~valid, 0.0, scale)
+        new = trial * scale[..., None]
+
+        fn = np.where(intact | shr_c, fn_b, 0.0) + np.where(comp, fn_u, 0.0)
+        qn = np.where(tens, _spring(fn_b * fn_b, kn) + _spring(tr2, ks), 0.0)
+        qs = np.where(shr_t, _spring(fn_b * fn_b, kn) + _spring(tr2, ks), 0.0)
+        qs = qs + np.where(shr_c, _spring(tr2 - lim_b * lim_b, ks), 0.0)
+        qf = qf + np.where(apart, _spring(rot2, ks), 0.0)
+        ks_safe = np.where(ks > 0.0, ks, 1.0)
+        qf = qf + np.where(slide & (ks > 0.0),
+                           0.5 * ((rot + new) * (trial - new)).sum(-1) / ks_safe, 0.0)
+        qf = np.where(valid, qf, 0.0)
+
+        s.fs[:] = np.where(valid[..., None], new, s.fs)
+        s.cstate[:] = np.where(tens, code_t, np.where(shr, code_s, s.cstate))
+        fc = np.stack([_colsum(np.where(valid, fn * n[..., c] + new[..., c], 0.0))
+                       for c in range(s.dim)], axis=1)
+        s.q_break_n += 0.5 * _colsum(qn)
+        s.q_break_s += 0.5 * _colsum(qs)
+        s.q_fric += 0.5 * _colsum(qf)
+
+        fr = s.free != 0.0
+        m = s.m[:, None]
+        eta = s.eta[:, None]
+        f = fc + m * s.gravity[None, :s.dim] + s.fload
+        vn = (s.v + 0.5 * dt * s.a + 0.5 * dt * f / m) / (1.0 + 0.5 * dt * eta / m)
+        s.q_visc += np.where(fr, 0.5 * eta * vn * s.dx, 0.0).sum(axis=1)
+        s.w_ext -= np.where(fr, 0.0, 0.5 * fc * s.dx).sum(axis=1)
+        s.a[:] = np.where(fr, (f - eta * vn) / m, fc / m)
+        s.v[:] = np.where(fr, vn, s.v)
+
+    def elastic_energy(self):
+        s = self.s
+        valid, j, d, dist = self._geometry()
+        xn = dist - (s.r[:, None] + s.r[j])
+        kn = _series(s.kn[:, None], s.kn[j])
+        ks = _series(s.ks[:, None], s.ks[j])
+        e = _spring((s.fs * s.fs).sum(-1), ks)
+        bonded = s.cstate == BONDED
+        comp = ~bonded & (xn < 0.0)
+        if s.hertz:
+            e_i = s.kn[:, None] / (np.pi * s.r[:, None])
+            e_j = s.kn[j] / (np.pi * s.r[j])
+            ov = np.where(comp, -xn, 0.0)
+            fh = (4.0 / 3.0) * _series(e_i, e_j) * np.sqrt(_series(s.r[:, None], s.r[j])) \
+                * ov * np.sqrt(ov)
+            en = np.where(bonded, 0.5 * kn * xn * xn, np.where(comp, 0.4 * fh * ov, 0.0))
+        else:
+            en = np.where(bonded | comp, 0.5 * kn * xn * xn, 0.0)
+        self.e_el[:] = 0.5 * _colsum(np.where(valid, e + en, 0.0))
+        return self.e_el

@@ -1,0 +1,1 @@
+"""Small ready-made models used by examples, tests and benchmarks."""

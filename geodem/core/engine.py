@@ -1,0 +1,260 @@
+"""The time-step loop and its books: stepping, neighbour rebuilds, crack log, energy, checks.
+
+The loop (``Simulation.run``) does per step exactly two backend calls, ``move`` and ``force``
+(velocity Verlet, see ``geodem.backends.kernels``), and nothing else: no Python loop over
+elements, no allocation, no host/device copy. Every ``check_every`` steps it asks whether the
+neighbour rows need a rebuild (predictive skin test), harvests new cracks and checks that the
+state is finite. Energies are computed on demand (``energies``).
+
+Energy balance (PHYSICS.md section 4)::
+
+    E_k + E_g + E_el + Q_visc + Q_break_n + Q_break_s + Q_fric = E_0 + W_ext
+
+``closure_error`` is the residual divided by the largest energy in play.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from geodem.backends import select
+from geodem.core import timestep
+from geodem.core.state import BONDED, BROKEN_BASE, broken_code, decode_broken
+
+
+class InstabilityError(RuntimeError):
+    """The run became unstable (NaN, energy growth, deep overlap); the message says what to do."""
+
+
+def validate_state(state) -> None:
+    """Reject non-physical input before any stepping (ValueError naming the parameter/range)."""
+    n = state.n
+    if n == 0:
+        raise ValueError("the model has no elements")
+    for name in ("x", "v"):
+        arr = getattr(state, name)
+        bad = ~np.isfinite(arr).all(axis=1)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"{name} of element {i} is not finite ({arr[i]}); "
+                             f"all {name} must be finite numbers")
+    checks = (("r", 0.0, False), ("m", 0.0, False), ("kn", 0.0, False), ("ks", 0.0, True),
+              ("xb", 0.0, True), ("fs0", 0.0, True), ("mu", 0.0, True), ("eta", 0.0, True))
+    for name, lo, allow_zero in checks:
+        arr = getattr(state, name)
+        ok = np.isfinite(arr) & ((arr >= lo) if allow_zero else (arr > lo))
+        if not ok.all():
+            i = int(np.flatnonzero(~ok)[0])
+            rng = ">= 0" if allow_zero else "> 0"
+            raise ValueError(f"parameter {name} of element {i} is {arr[i]!r}; allowed range: "
+                             f"finite and {rng}")
+    if not ((state.brate >= 0) & np.isfinite(state.brate)).all():
+        raise ValueError("bond_rate must be finite and >= 0")
+    # fixed elements must not overlap each other beyond contact
+    fixed = ~(state.free != 0).any(axis=1)
+    idx = np.flatnonzero(fixed)
+    if 1 < idx.size <= 20000:
+        from scipy.spatial import cKDTree
+
+        xf, rf = state.x[idx], state.r[idx]
+        pairs = cKDTree(xf).query_pairs(2.0 * rf.max(), output_type="ndarray")
+        if len(pairs):
+            d = np.linalg.norm(xf[pairs[:, 1]] - xf[pairs[:, 0]], axis=1)
+            ov = rf[pairs[:, 0]] + rf[pairs[:, 1]] - d
+            deep = ov > 0.5 * np.minimum(rf[pairs[:, 0]], rf[pairs[:, 1]])
+            if deep.any():
+                a, b = idx[pairs[np.argmax(deep), 0]], idx[pairs[np.argmax(deep), 1]]
+                raise ValueError(f"fixed elements {a} and {b} overlap by more than half a radius; "
+                                 "fixed elements may touch but not interpenetrate")
+
+
+class Simulation:
+    """Advance a :class:`~geodem.core.state.State` in time on a chosen backend.
+
+    Parameters
+    ----------
+    state: the model (modified in place; call :meth:`sync` before reading arrays on a GPU).
+    backend: ``auto | numba | numpy | cupy`` (default: ``$GEODEM_BACKEND`` or ``auto``).
+    dt: time step [s]; default ``dt_fraction`` x the smallest element period.
+    check_every: steps between neighbour/crack/finiteness checks.
+    """
+
+    def __init__(self, state, backend=None, dt=None, dt_fraction=timestep.DEFAULT_FRACTION,
+                 check_every=10, overlap_limit=0.5):
+        validate_state(state)
+        self.state = state
+        if dt is None:
+            dt = state.dt if state.dt > 0 else timestep.default_dt(state, dt_fraction)
+        timestep.check_dt(state, dt)
+        state.dt = float(dt)
+        self.check_every = int(check_every)
+        self.overlap_limit = overlap_limit
+        self.cracks = {"i": [], "j": [], "time": [], "type": []}
+        self.backend = select(backend)
+        self.backend.attach(state)
+        self._harvest()  # bonds already broken in the input are logged at once
+        self.reset_energy()
+
+    # ------------------------------------------------------------------ stepping
+    def run(self, nsteps: int, callback=None, every: int = 0):
+        """Advance ``nsteps`` steps; ``callback(sim)`` every ``every`` steps if given."""
+        s, b = self.state, self.backend
+        dt = s.dt
+        for _ in range(int(nsteps)):
+            b.move(dt)
+            nxt = s.step + 1
+            b.force(dt, broken_code(nxt, 1), broken_code(nxt, 2))
+            s.step = nxt
+            s.time += dt
+            if nxt % self.check_every == 0:
+                self._checks()
+            if callback is not None and every and nxt % every == 0:
+                callback(self)
+        self._harvest()
+        return self
+
+    def _checks(self):
+        s, b = self.state, self.backend
+        if s.skin > 0.0:
+            b.pull(("x", "v"))
+            from geodem.core import neighbors
+
+            if not np.isfinite(s.x).all():
+                self._raise_nonfinite()
+            if neighbors.needs_rebuild(s, steps_ahead=self.check_every):
+                b.pull(("nbr", "cstate", "fs", "brate"))
+                self._harvest_host()
+                neighbors.build_rows(s)
+                b.push()
+                return
+        self._harvest()
+
+    def _raise_nonfinite(self):
+        s = self.state
+        bad = np.flatnonzero(~np.isfinite(s.x).all(axis=1) | ~np.isfinite(s.v).all(axis=1))
+        raise InstabilityError(
+            f"the run became unstable at step {s.step}: non-finite positions/velocities of "
+            f"elements {bad[:10].tolist()}{' ...' if bad.size > 10 else ''}; reduce dt "
+            f"(now {s.dt:.4g} s, stability bound {timestep.stable_dt_bound(s):.4g} s) or check "
+            f"their stiffness and mass")
+
+    # ------------------------------------------------------------------ cracks
+    def _harvest(self):
+        b = self.backend
+        if b.has_new_cracks():
+            b.pull(("nbr", "cstate"))
+            self._harvest_host()
+            b.push(("cstate",))
+
+    def _harvest_host(self):
+        s = self.state
+        hit = s.cstate >= BROKEN_BASE
+        if not hit.any():
+            return
+        rows, cols = np.nonzero(hit)
+        step, kind = decode_broken(s.cstate[rows, cols])
+        j = s.nbr[rows, cols]
+        once = rows < j
+        self.cracks["i"].extend(rows[once].tolist())
+        self.cracks["j"].extend(j[once].tolist())
+        self.cracks["time"].extend((step[once] * s.dt).tolist())
+        self.cracks["type"].extend(kind[once].tolist())
+        s.cstate[hit] = 0
+
+    def crack_log(self) -> np.ndarray:
+        """Structured array of cracks ``(i, j, time, type)``; type 1 tensile, 2 shear, 0 joint."""
+        self._harvest()
+        c = self.cracks
+        out = np.zeros(len(c["i"]), dtype=[("i", "i4"), ("j", "i4"), ("time", "f8"),
+                                           ("type", "i1")])
+        for k in out.dtype.names:
+            out[k] = c[k]
+        return out
+
+    # ------------------------------------------------------------------ energy
+    def sync(self):
+        """Bring every array of the backend back into ``state`` (no-op on CPU backends)."""
+        self.backend.pull()
+        return self.state
+
+    def _parts(self):
+        s = self.state
+        self.sync()
+        fr = s.free != 0.0
+        e_el = np.asarray(self.backend.elastic_energy())
+        ke = 0.5 * (s.m[:, None] * s.v * s.v * fr).sum(axis=1)
+        eg = -(s.m[:, None] * s.x * s.gravity[None, :s.dim] * fr).sum(axis=1)
+        return {"kinetic": ke, "gravity": eg, "elastic": e_el.copy(),
+                "heat_viscous": s.q_visc.copy(), "heat_break_normal": s.q_break_n.copy(),
+                "heat_break_shear": s.q_break_s.copy(), "heat_friction": s.q_fric.copy(),
+                "work_external": s.w_ext.copy()}
+
+    def reset_energy(self):
+        """Zero the heat/work books and take the current energy as ``E_0``."""
+        s = self.state
+        self.sync()
+        for k in ("q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext"):
+            getattr(s, k)[:] = 0.0
+        self.backend.push(("q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext"))
+        p = self._parts()
+        self._eg0 = float(p["gravity"].sum())
+        self._emech0 = float(p["kinetic"].sum() + p["elastic"].sum())
+        s.e0 = self._emech0 + self._eg0
+
+    def energies(self, by_group: bool = False) -> dict:
+        """Energy terms [J]: totals, plus per-group arrays indexed by group name if asked."""
+        p = self._parts()
+        tot = {k: float(v.sum()) for k, v in p.items()}
+        tot["heat_total"] = (tot["heat_viscous"] + tot["heat_break_normal"]
+                             + tot["heat_break_shear"] + tot["heat_friction"])
+        tot["total"] = tot["kinetic"] + tot["gravity"] + tot["elastic"] + tot["heat_total"]
+        tot["initial"] = self.state.e0
+        resid = tot["total"] - self.state.e0 - tot["work_external"]
+        scale = max(self._emech0, tot["kinetic"] + tot["elastic"] + tot["heat_total"],
+                    abs(tot["work_external"]), abs(tot["gravity"] - self._eg0), 1e-300)
+        tot["closure_residual"] = resid
+        tot["closure_error"] = abs(resid) / scale
+        if by_group:
+            s = self.state
+            tot["groups"] = {name: {k: float(v[s.group == gid].sum()) for k, v in p.items()}
+                             for name, gid in s.groups.items()}
+            if "all" in tot["groups"]:
+                tot["groups"]["all"] = {k: float(v.sum()) for k, v in p.items()}
+        return tot
+
+    def closure_error(self) -> float:
+        return self.energies()["closure_error"]
+
+    def check_energy(self, limit: float = 0.5):
+        """Raise InstabilityError when the books are off by more than ``limit`` (energy growth)."""
+        e = self.energies()
+        if not math.isfinite(e["total"]):
+            self._raise_nonfinite()
+        if e["closure_error"] > limit:
+            raise InstabilityError(
+                f"energy grew without a source at step {self.state.step}: closure error "
+                f"{e['closure_error']:.3g} > {limit}; the time step {self.state.dt:.4g} s is "
+                f"probably too large (stability bound {timestep.stable_dt_bound(self.state):.4g} s)")
+        return e
+
+    def check_overlaps(self):
+        """Raise InstabilityError when a contact overlaps more than ``overlap_limit`` x min radius."""
+        s = self.sync()
+        valid = s.nbr >= 0
+        j = np.where(valid, s.nbr, 0)
+        dist = np.linalg.norm(s.x[j] - s.x[:, None, :], axis=-1)
+        ov = (s.r[:, None] + s.r[j] - dist) / np.minimum(s.r[:, None], s.r[j])
+        ov = np.where(valid, ov, -np.inf)
+        worst = float(ov.max()) if ov.size else -np.inf
+        if worst > self.overlap_limit:
+            i, k = np.unravel_index(np.argmax(ov), ov.shape)
+            raise InstabilityError(
+                f"elements {i} and {s.nbr[i, k]} overlap by {worst:.2f} x the smaller radius "
+                f"(limit {self.overlap_limit}) at step {s.step}: reduce the loading rate or dt, "
+                f"or raise kn")
+        return worst
+
+    def bonded_count(self) -> int:
+        self.backend.pull(("cstate",))
+        return int((self.state.cstate == BONDED).sum() // 2)

@@ -1,0 +1,173 @@
+"""The MatDEM contact law, written once as small scalar functions.
+
+These functions are plain Python on scalars. Each backend compiles them for its own loop:
+``numba.njit`` for the CPU loop, ``numba.cuda.jit(device=True)`` for the GPU kernel (see
+``geodem.backends.kernels``). The NumPy reference (``geodem.backends.numpy_ref``) restates the
+same rules in whole-matrix form and the tests hold the two to 1e-12.
+
+A contact ``ij`` is evaluated from element ``i``'s side with the branch vector
+``d = x_j - x_i``. Every quantity below is either symmetric in ``(i, j)`` or changes sign exactly
+with ``d``, so the row of ``j`` reaches the same decisions bit for bit and the forces are
+exactly opposite (PHYSICS.md section 1; Liu et al. 2017, MatDEM).
+
+Normal (tension positive): ``Xn = |d| - (R_i + R_j)``, ``Kn = kn_i kn_j / (kn_i + kn_j)``
+
+* bonded: ``Fn = Kn Xn`` in tension and compression; tensile break when
+  ``Fn >= BF = rate * min(kn_i xb_i, kn_j xb_j)``;
+* unbonded: ``Fn = Kn Xn`` if ``Xn < 0`` else 0; with ``hertz`` the compression of an unbonded
+  contact is ``Fn = -(4/3) E* sqrt(R*) |Xn|^1.5`` with ``E_i = kn_i/(pi R_i)``.
+
+Shear: the stored spring ``Fs`` (force on ``i``) is projected onto the current tangent plane,
+then ``Fs_trial = Fs + Ks dXs`` with ``dXs`` the tangential relative displacement of the centres
+in the step, ``Ks = ks_i ks_j/(ks_i + ks_j)``.
+
+* bonded: ``|Fs| <= Fsmax = rate * min(fs0_i, fs0_j) - mu Fn`` (``mu = min(mu_i, mu_j)``);
+  exceeding it breaks the bond in shear; a pair broken in tension keeps nothing, a pair broken
+  in compression keeps friction ``-mu Fn`` (the excess is breaking heat, not sliding);
+* unbonded in compression: Coulomb, ``|Fs| <= -mu Fn``, the excess slides (friction heat);
+* unbonded and apart: ``Fs = 0``.
+
+Heat [J] of the contact in this step (the caller books half on each side):
+
+* ``qn`` normal breaking: ``Fn^2/(2Kn) + |Fs_trial|^2/(2Ks)`` of a tensile break;
+* ``qs`` shear breaking: drop of the spring energy from ``Fs_trial`` to what is kept, plus the
+  normal energy when the pair was in tension;
+* ``qf`` friction: ``(Fs_1 + Fs_2)/2 . dS`` with ``dS = (Fs_trial - Fs_new)/Ks``, plus the energy
+  lost by projecting the spring and by a contact opening (so the books close).
+"""
+from __future__ import annotations
+
+import math
+
+UNBONDED = 0
+BONDED = 1
+HELPERS = ("series", "spring_energy")  # called by the law; compiled per target
+
+
+def series(a, b):
+    """Two springs in series: ``a b / (a + b)``; 0 when both are 0 [N/m]."""
+    s = a + b
+    if s > 0.0:
+        return a * b / s
+    return 0.0
+
+
+def spring_energy(f2, k):
+    """Energy ``f^2/(2k)`` of a linear spring holding force squared ``f2``; 0 if ``k == 0`` [J]."""
+    if k > 0.0:
+        return 0.5 * f2 / k
+    return 0.0
+
+
+def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
+            ri, rj, kni, knj, ksi, ksj, xbi, xbj, fs0i, fs0j, mui, muj,
+            rate, cs, broken_t, broken_s, hertz):
+    """Evaluate one contact from element i's side.
+
+    Parameters: branch vector ``d = x_j - x_i`` [m]; relative displacement of the step
+    ``dx_j - dx_i`` [m]; stored shear spring ``Fs`` [N]; element parameters of i and j; bond rate;
+    contact state ``cs`` (1 bonded, anything else unbonded); the state codes to store for a
+    tensile / shear break in this step; ``hertz`` flag (0/1).
+
+    Returns ``(Fn, nx, ny, nz, sx, sy, sz, cs_new, qn, qs, qf)``: normal force (tension +) along
+    the unit normal ``n = d/|d|``, the new shear spring, the new state and the step's heats.
+    The force on ``i`` is ``Fn n + Fs``.
+    """
+    dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+    inv = 1.0 / dist
+    nx = dx * inv
+    ny = dy * inv
+    nz = dz * inv
+    xn = dist - (ri + rj)
+    kn = series(kni, knj)
+    ks = series(ksi, ksj)
+
+    # rotate the stored spring onto the current tangent plane
+    p = nx * sx + ny * sy + nz * sz
+    old2 = sx * sx + sy * sy + sz * sz
+    sx = sx - p * nx
+    sy = sy - p * ny
+    sz = sz - p * nz
+    rot2 = sx * sx + sy * sy + sz * sz
+    qf = spring_energy(old2 - rot2, ks)
+    # trial shear force from the tangential relative displacement
+    pr = nx * rx + ny * ry + nz * rz
+    tx = sx + ks * (rx - pr * nx)
+    ty = sy + ks * (ry - pr * ny)
+    tz = sz + ks * (rz - pr * nz)
+    tr2 = tx * tx + ty * ty + tz * tz
+
+    qn = 0.0
+    qs = 0.0
+    cs_new = cs
+    mu = min(mui, muj)
+    if cs == BONDED:
+        fn = kn * xn
+        bf = rate * min(kni * xbi, knj * xbj)
+        if fn >= bf:
+            # tensile break: normal and shear springs release everything
+            qn = spring_energy(fn * fn, kn) + spring_energy(tr2, ks)
+            return 0.0, nx, ny, nz, 0.0, 0.0, 0.0, broken_t, qn, qs, qf
+        fsmax = rate * min(fs0i, fs0j) - mu * fn
+        if fsmax < 0.0 or tr2 > fsmax * fsmax:
+            if fn >= 0.0:
+                # shear break in tension: tension vanishes with the bond
+                qs = spring_energy(fn * fn, kn) + spring_energy(tr2, ks)
+                return 0.0, nx, ny, nz, 0.0, 0.0, 0.0, broken_s, qn, qs, qf
+            # shear break in compression: keep the friction limit, the drop is heat
+            lim = -mu * fn
+            scale = lim / math.sqrt(tr2)
+            tx = tx * scale
+            ty = ty * scale
+            tz = tz * scale
+            qs = spring_energy(tr2 - lim * lim, ks)
+            return fn, nx, ny, nz, tx, ty, tz, broken_s, qn, qs, qf
+        return fn, nx, ny, nz, tx, ty, tz, cs_new, qn, qs, qf
+
+    if xn >= 0.0:
+        # unbonded and apart: the spring empties
+        qf += spring_energy(rot2, ks)
+        return 0.0, nx, ny, nz, 0.0, 0.0, 0.0, cs_new, qn, qs, qf
+    if hertz:
+        ei = kni / (math.pi * ri)
+        ej = knj / (math.pi * rj)
+        fn = -(4.0 / 3.0) * series(ei, ej) * math.sqrt(series(ri, rj)) * (-xn) * math.sqrt(-xn)
+    else:
+        fn = kn * xn
+    lim = -mu * fn
+    if tr2 > lim * lim:
+        # Coulomb sliding
+        if tr2 > 0.0:
+            scale = lim / math.sqrt(tr2)
+        else:
+            scale = 0.0
+        nxs = tx * scale
+        nys = ty * scale
+        nzs = tz * scale
+        if ks > 0.0:
+            qf += 0.5 * ((sx + nxs) * (tx - nxs) + (sy + nys) * (ty - nys)
+                         + (sz + nzs) * (tz - nzs)) / ks
+        return fn, nx, ny, nz, nxs, nys, nzs, cs_new, qn, qs, qf
+    return fn, nx, ny, nz, tx, ty, tz, cs_new, qn, qs, qf
+
+
+def contact_energy(dx, dy, dz, sx, sy, sz, ri, rj, kni, knj, ksi, ksj, cs, hertz):
+    """Elastic energy of one contact from its current geometry and stored spring [J].
+
+    ``Fn^2/(2Kn) + |Fs|^2/(2Ks)``; a Hertz contact stores ``(2/5) |Fn| |Xn|``.
+    """
+    dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+    xn = dist - (ri + rj)
+    kn = series(kni, knj)
+    ks = series(ksi, ksj)
+    e = spring_energy(sx * sx + sy * sy + sz * sz, ks)
+    if cs == BONDED:
+        return e + 0.5 * kn * xn * xn
+    if xn < 0.0:
+        if hertz:
+            ei = kni / (math.pi * ri)
+            ej = knj / (math.pi * rj)
+            fn = (4.0 / 3.0) * series(ei, ej) * math.sqrt(series(ri, rj)) * (-xn) * math.sqrt(-xn)
+            return e + 0.4 * fn * (-xn)
+        return e + 0.5 * kn * xn * xn
+    return e

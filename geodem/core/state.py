@@ -1,0 +1,169 @@
+"""Model state: plain structure-of-arrays data (jax-md style).
+
+Every array is owned by a :class:`State`; kernels receive the arrays, never the object.
+Shapes use ``N`` elements, ``W`` row width (neighbour capacity) and ``dim`` = 2 or 3.
+
+Element arrays (SI units)
+    x, v, a      (N, dim) float64   position [m], velocity [m/s], acceleration [m/s^2]
+                                    (``a`` = F/m of the last force evaluation, for every DOF,
+                                    fixed ones included: it carries the reaction force)
+    dx           (N, dim) float64   displacement of the last step [m] (shear increments)
+    x_ref        (N, dim) float64   positions at the last neighbour build [m]
+    r, m         (N,)     float64   radius [m], mass [kg]
+    kn, ks       (N,)     float64   element normal / shear spring stiffness [N/m]
+    xb           (N,)     float64   element breaking displacement [m]
+    fs0          (N,)     float64   element initial shear resistance [N]
+    mu           (N,)     float64   element friction coefficient [-]
+    eta          (N,)     float64   global (mass) damping coefficient [kg/s]
+    free         (N, dim) float64   1.0 for a free degree of freedom, 0.0 for a fixed or
+                                    kinematic one (moved at its velocity ``v``)
+    fload        (N, dim) float64   external load per element [N] (gravity is separate)
+    group        (N,)     int32     group id; names in ``groups``
+
+Contact rows (each contact stored in both elements' rows)
+    nbr          (N, W)   int32     neighbour index, -1 = empty; valid entries first
+    cstate       (N, W)   int32     0 contact without bond, 1 bonded,
+                                    >= 2 bond broken at ``step`` with ``type``:
+                                    ``2 + 2*step + (type-1)`` (type 1 tensile, 2 shear),
+                                    not yet harvested into the crack log
+    fs           (N, W, dim) float64 shear spring force acting on the row's element [N]
+    brate        (N, W)   float32   bond_rate: scales the breaking force and Fs0 [-]
+
+Accumulated energy [J] per element (half of each contact's share goes to each side)
+    q_visc, q_break_n, q_break_s, q_fric, w_ext   (N,) float64
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+ELEMENT_VEC = ("x", "v", "a", "dx", "x_ref", "free", "fload")
+ELEMENT_SCALAR = ("r", "m", "kn", "ks", "xb", "fs0", "mu", "eta")
+ACCUMULATORS = ("q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext")
+ROW_ARRAYS = ("nbr", "cstate", "fs", "brate")
+
+# contact state codes
+UNBONDED = 0
+BONDED = 1
+BROKEN_BASE = 2  # code = 2 + 2*step + (type-1)
+TENSILE = 1
+SHEAR = 2
+JOINT = 0
+
+
+def broken_code(step: int, kind: int) -> int:
+    """Contact-state code of a bond broken at ``step`` with ``kind`` (1 tensile, 2 shear)."""
+    return BROKEN_BASE + 2 * step + (kind - 1)
+
+
+def decode_broken(code):
+    """Inverse of :func:`broken_code`: returns ``(step, kind)`` (arrays allowed)."""
+    c = np.asarray(code) - BROKEN_BASE
+    return c // 2, c % 2 + 1
+
+
+@dataclass
+class State:
+    """All data of one model. Build with :func:`new_state`; never resize in place."""
+
+    dim: int
+    x: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    dx: np.ndarray
+    x_ref: np.ndarray
+    free: np.ndarray
+    fload: np.ndarray
+    r: np.ndarray
+    m: np.ndarray
+    kn: np.ndarray
+    ks: np.ndarray
+    xb: np.ndarray
+    fs0: np.ndarray
+    mu: np.ndarray
+    eta: np.ndarray
+    group: np.ndarray
+    nbr: np.ndarray
+    cstate: np.ndarray
+    fs: np.ndarray
+    brate: np.ndarray
+    q_visc: np.ndarray
+    q_break_n: np.ndarray
+    q_break_s: np.ndarray
+    q_fric: np.ndarray
+    w_ext: np.ndarray
+    gravity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    groups: dict = field(default_factory=dict)  # name -> group id
+    thickness: float = 0.0  # 2-D disc thickness [m] (information; masses are given)
+    hertz: bool = False  # Hertz law for unbonded contacts in compression
+    dt: float = 0.0
+    step: int = 0
+    time: float = 0.0
+    skin: float = 0.0
+    e0: float = 0.0  # reference total energy for the closure check
+
+    @property
+    def n(self) -> int:
+        return self.x.shape[0]
+
+    @property
+    def width(self) -> int:
+        return self.nbr.shape[1]
+
+    def array_names(self):
+        return ELEMENT_VEC + ELEMENT_SCALAR + ("group",) + ROW_ARRAYS + ACCUMULATORS
+
+    def arrays(self) -> dict:
+        return {k: getattr(self, k) for k in self.array_names()}
+
+    def nbytes(self) -> int:
+        return int(sum(a.nbytes for a in self.arrays().values()))
+
+    def copy(self) -> "State":
+        kw = {}
+        for f in fields(self):
+            val = getattr(self, f.name)
+            if isinstance(val, np.ndarray):
+                val = val.copy()
+            elif isinstance(val, dict):
+                val = dict(val)
+            kw[f.name] = val
+        return State(**kw)
+
+    def group_mask(self, name: str) -> np.ndarray:
+        if name not in self.groups:
+            raise KeyError(f"unknown group {name!r}; groups: {sorted(self.groups)}")
+        return self.group == self.groups[name]
+
+
+def new_state(x, r, m, *, dim=None, width=16, kn=0.0, ks=0.0, xb=0.0, fs0=0.0, mu=0.0,
+              eta=0.0) -> State:
+    """Allocate a state for elements at ``x`` (N, dim) with radii ``r`` and masses ``m``.
+
+    Scalar parameters are broadcast to all elements. Rows start empty (``nbr = -1``).
+    """
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] not in (2, 3):
+        raise ValueError(f"positions must have shape (N, 2) or (N, 3), got {x.shape}")
+    n, d = x.shape
+    if dim is not None and dim != d:
+        raise ValueError(f"dim={dim} but positions have {d} columns")
+
+    def scal(v, name):
+        a = np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))).copy()
+        return a
+
+    z = lambda: np.zeros((n, d))  # noqa: E731
+    st = State(
+        dim=d, x=x.copy(), v=z(), a=z(), dx=z(), x_ref=x.copy(), free=np.ones((n, d)),
+        fload=z(), r=scal(r, "r"), m=scal(m, "m"), kn=scal(kn, "kn"), ks=scal(ks, "ks"),
+        xb=scal(xb, "xb"), fs0=scal(fs0, "fs0"), mu=scal(mu, "mu"), eta=scal(eta, "eta"),
+        group=np.zeros(n, np.int32),
+        nbr=np.full((n, width), -1, np.int32), cstate=np.zeros((n, width), np.int32),
+        fs=np.zeros((n, width, d)), brate=np.ones((n, width), np.float32),
+        q_visc=np.zeros(n), q_break_n=np.zeros(n), q_break_s=np.zeros(n),
+        q_fric=np.zeros(n), w_ext=np.zeros(n),
+        gravity=np.zeros(d), groups={"all": 0},
+    )
+    return st
