@@ -203,6 +203,8 @@ def make_kernels(dim: int, target: str):
         return move, force, energy
 
     if target == "cuda":
+        # ``cuda`` must be a module global: the CUDA simulator swaps it in the kernels' globals
+        global cuda
         from numba import cuda
 
         dev = lambda f: cuda.jit(device=True)(f)  # noqa: E731

@@ -255,6 +255,33 @@ class Simulation:
                 f"or raise kn")
         return worst
 
+    # ------------------------------------------------------------------ checkpoints
+    def save(self, path) -> None:
+        """Write a complete checkpoint (state, energy books, crack log) atomically."""
+        from geodem.core.checkpoint import save_state
+
+        self.sync()
+        self._harvest()
+        save_state(self.state, path, extra={"cracks": self.cracks, "eg0": self._eg0,
+                                            "emech0": self._emech0,
+                                            "check_every": self.check_every})
+
+    @classmethod
+    def load(cls, path, backend=None) -> "Simulation":
+        """Resume from :meth:`save`'s checkpoint; stepping continues bit-identically on CPU."""
+        from geodem.core.checkpoint import load_state
+
+        state, extra = load_state(path)
+        sim = cls.__new__(cls)
+        sim.state = state
+        sim.check_every = int(extra["check_every"])
+        sim.overlap_limit = 0.5
+        sim.cracks = extra["cracks"]
+        sim._eg0, sim._emech0 = extra["eg0"], extra["emech0"]
+        sim.backend = select(backend)
+        sim.backend.attach(state)
+        return sim
+
     def bonded_count(self) -> int:
         self.backend.pull(("cstate",))
         return int((self.state.cstate == BONDED).sum() // 2)
