@@ -1,15 +1,26 @@
 import numpy as np
 import pytest
 
-from geodem.build.lattice import bonded_state, random_specimen
+from geodem.build.lattice import bonded_state, fcc_lattice, lattice_shape, triangular_lattice
 
 
-def make_specimen(n=300, dim=3, seed=1, xb=2e-3, fs0=2e4, mu=0.4, vscale=0.5):
-    """A small bonded specimen with random velocities: some bonds break within a few steps."""
-    x, r = random_specimen(n, dim=dim, seed=seed, d=0.01)
-    st = bonded_state(x, r, density=2650.0, kn=1e7, ks=4e6, xb=xb * 0.01, fs0=fs0 * 1e-4,
-                      mu=mu, gap=0.05 * 0.01, eta=1e-3)
+def make_specimen(n=300, dim=3, seed=1, xb=5e-4, fs0=60.0, mu=0.4, vscale=1.0):
+    """A small bonded lattice with scattered element parameters and random velocities.
+
+    Elements touch (no prestress) and the random motion breaks some bonds within a few tens of
+    steps, in tension and in shear, so forces, decisions and heat books are all exercised.
+    """
+    d = 0.01
     rng = np.random.default_rng(seed)
+    shape = lattice_shape(n, dim)
+    x = fcc_lattice(*shape, d) if dim == 3 else triangular_lattice(*shape, d)
+    x = x + rng.uniform(-1e-4, 1e-4, x.shape) * d
+    nel = len(x)
+    r = np.full(nel, 0.5 * d)
+    scatter = lambda v: v * rng.uniform(0.8, 1.2, nel)  # noqa: E731
+    st = bonded_state(x, r, density=2650.0, kn=scatter(1e7), ks=scatter(4e6),
+                      xb=scatter(xb * d), fs0=scatter(fs0), mu=mu, gap=0.01 * d,
+                      eta=1e-3)
     st.v[:] = rng.normal(0.0, vscale, st.v.shape)
     st.free[:3] = 0.0  # a few fixed elements: reactions and external work
     st.v[:3] = 0.0

@@ -74,6 +74,7 @@ class NumpyBackend(HostBackend):
         pr = (n * rel).sum(-1)
         trial = rot + ks[..., None] * (rel - pr[..., None] * n)
         tr2 = (trial * trial).sum(-1)
+        wt = (trial * (rel - pr[..., None] * n)).sum(-1)
 
         bonded = valid & (s.cstate == BONDED)
         fn_b = kn * xn
@@ -107,9 +108,11 @@ class NumpyBackend(HostBackend):
         new = trial * scale[..., None]
 
         fn = np.where(intact | shr_c, fn_b, 0.0) + np.where(comp, fn_u, 0.0)
-        qn = np.where(tens, _spring(fn_b * fn_b, kn) + _spring(tr2, ks), 0.0)
-        qs = np.where(shr_t, _spring(fn_b * fn_b, kn) + _spring(tr2, ks), 0.0)
-        qs = qs + np.where(shr_c, _spring(tr2 - lim_b * lim_b, ks), 0.0)
+        released = _spring(fn_b * fn_b, kn) + _spring(tr2, ks) - 0.5 * (fn_b * pr + wt)
+        qn = np.where(tens, released, 0.0)
+        qs = np.where(shr_t, released, 0.0)
+        qs = qs + np.where(shr_c, _spring(tr2 - lim_b * lim_b, ks) - 0.5 * (1.0 - scale) * wt,
+                           0.0)
         qf = qf + np.where(apart, _spring(rot2, ks), 0.0)
         ks_safe = np.where(ks > 0.0, ks, 1.0)
         qf = qf + np.where(slide & (ks > 0.0),

@@ -92,8 +92,16 @@ class Simulation:
         self.overlap_limit = overlap_limit
         self.cracks = {"i": [], "j": [], "time": [], "type": []}
         self.backend = select(backend)
-        self.backend.attach(state)
-        self._harvest()  # bonds already broken in the input are logged at once
+        if state.step == 0:
+            # a fresh model: evaluate the initial forces so the first step starts from a = F/m
+            # (dt = 0 changes no velocity and no spring); bonds already beyond their strength
+            # break now and are logged at time 0
+            state.dx[:] = 0.0
+            self.backend.attach(state)
+            self.backend.force(0.0, broken_code(0, 1), broken_code(0, 2))
+        else:
+            self.backend.attach(state)
+        self._harvest()
         self.reset_energy()
 
     # ------------------------------------------------------------------ stepping

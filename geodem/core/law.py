@@ -29,9 +29,13 @@ in the step, ``Ks = ks_i ks_j/(ks_i + ks_j)``.
 
 Heat [J] of the contact in this step (the caller books half on each side):
 
-* ``qn`` normal breaking: ``Fn^2/(2Kn) + |Fs_trial|^2/(2Ks)`` of a tensile break;
-* ``qs`` shear breaking: drop of the spring energy from ``Fs_trial`` to what is kept, plus the
-  normal energy when the pair was in tension;
+* ``qn`` normal breaking: the energy of a bond broken in tension, ``Fn^2/(2Kn) +
+  |Fs_trial|^2/(2Ks)``, less half the work its trial forces would have done over the step,
+  ``(Fn dXn + Fs_trial . dXs)/2``: velocity Verlet books the step's work with the force *after*
+  the break (zero), so this is what the bond really held (exact for linear springs);
+* ``qs`` shear breaking: likewise the drop of the spring energy from ``Fs_trial`` to what is kept,
+  ``(|Fs_trial|^2 - |Fs_kept|^2)/(2Ks) - (Fs_trial - Fs_kept) . dXs / 2``, plus the normal energy
+  when the pair was in tension;
 * ``qf`` friction: ``(Fs_1 + Fs_2)/2 . dS`` with ``dS = (Fs_trial - Fs_new)/Ks``, plus the energy
   lost by projecting the spring and by a contact opening (so the books close).
 """
@@ -96,6 +100,8 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
     ty = sy + ks * (ry - pr * ny)
     tz = sz + ks * (rz - pr * nz)
     tr2 = tx * tx + ty * ty + tz * tz
+    # work the trial shear force would do over the step's tangential displacement (x2)
+    wt = tx * (rx - pr * nx) + ty * (ry - pr * ny) + tz * (rz - pr * nz)
 
     qn = 0.0
     qs = 0.0
@@ -106,21 +112,21 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
         bf = rate * min(kni * xbi, knj * xbj)
         if fn >= bf:
             # tensile break: normal and shear springs release everything
-            qn = spring_energy(fn * fn, kn) + spring_energy(tr2, ks)
+            qn = spring_energy(fn * fn, kn) + spring_energy(tr2, ks) - 0.5 * (fn * pr + wt)
             return 0.0, nx, ny, nz, 0.0, 0.0, 0.0, broken_t, qn, qs, qf
         fsmax = rate * min(fs0i, fs0j) - mu * fn
         if fsmax < 0.0 or tr2 > fsmax * fsmax:
             if fn >= 0.0:
                 # shear break in tension: tension vanishes with the bond
-                qs = spring_energy(fn * fn, kn) + spring_energy(tr2, ks)
+                qs = spring_energy(fn * fn, kn) + spring_energy(tr2, ks) - 0.5 * (fn * pr + wt)
                 return 0.0, nx, ny, nz, 0.0, 0.0, 0.0, broken_s, qn, qs, qf
             # shear break in compression: keep the friction limit, the drop is heat
             lim = -mu * fn
             scale = lim / math.sqrt(tr2)
+            qs = spring_energy(tr2 - lim * lim, ks) - 0.5 * (1.0 - scale) * wt
             tx = tx * scale
             ty = ty * scale
             tz = tz * scale
-            qs = spring_energy(tr2 - lim * lim, ks)
             return fn, nx, ny, nz, tx, ty, tz, broken_s, qn, qs, qf
         return fn, nx, ny, nz, tx, ty, tz, cs_new, qn, qs, qf
 

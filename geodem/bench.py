@@ -1,0 +1,273 @@
+"""Throughput benchmark: full time steps of a bonded 3-D specimen on each backend.
+
+``run_bench`` builds, for every size, the same specimen (:func:`geodem.build.lattice.random_specimen`
+bonded by :func:`geodem.build.lattice.bonded_state`, Morton-sorted by
+:func:`geodem.core.neighbors.spatial_sort`) and times :meth:`geodem.core.engine.Simulation.run` on
+each backend: the real step loop, checks and neighbour rebuilds included. Benchmarks are commands, not
+tests: the numbers belong to the machine they were taken on (``geodem info`` describes it).
+
+The specimen is generated with overlapping elements, so it relaxes (expands) while it is stepped and the
+neighbour rows are rebuilt now and then; the count is reported as ``rebuilds``. Its bonds are made
+unbreakable (``xb`` = one diameter, ``fs0`` = 1000 kn d) so every contact stays a bonded contact.
+"""
+from __future__ import annotations
+
+import gc
+import math
+import os
+import time
+from contextlib import contextmanager
+
+import numpy as np
+
+DEFAULT_SIZES = (10_000, 100_000, 1_000_000)
+#: the whole-array NumPy reference is slow by design: it is only run up to this size
+NUMPY_MAX = 100_000
+#: smallest model a bench accepts
+MIN_SIZE = 100
+#: estimated peak memory per element [bytes]: state (~0.9-1.2 KB) + builder temporaries (~1 KB)
+BYTES_PER_ELEMENT_ESTIMATE = 1200 + 1000
+#: wall time aimed at for the timed part of each run [s] (unless ``steps`` is given)
+TARGET_SECONDS = 3.0
+#: the timed part runs at least this many steps (unless ``steps`` is given)
+MIN_STEPS = 3
+#: rock-like element parameters of the bench specimen (SI units; d = element spacing)
+SPACING = 1.0e-3
+DENSITY = 2650.0
+
+
+class BenchError(ValueError):
+    """Bad benchmark input (sizes, backends, steps); the message names the parameter."""
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available for new allocations (``MemAvailable``), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def estimated_memory(n: int) -> int:
+    """Rough peak memory [bytes] of building and stepping an ``n``-element bench specimen."""
+    return int(n) * BYTES_PER_ELEMENT_ESTIMATE
+
+
+def build_specimen(n: int, dim: int = 3, seed: int = 0):
+    """The bench specimen: about ``n`` bonded elements (~12 contacts each in 3-D), Morton-sorted."""
+    from geodem.build.lattice import bonded_state, random_specimen
+    from geodem.core.neighbors import spatial_sort
+
+    d = SPACING
+    x, r = random_specimen(n, dim=dim, seed=seed, d=d)
+    kn = 1.0e9 * d
+    state = bonded_state(x, r, density=DENSITY, kn=kn, ks=kn / 3.0, xb=1.0 * d,
+                         fs0=1.0e3 * kn * d, mu=0.5, gap=0.05 * d)
+    del x, r
+    spatial_sort(state)
+    return state
+
+
+def _check_sizes(sizes) -> list[int]:
+    out = []
+    for s in sizes:
+        if isinstance(s, (bool, np.bool_)):
+            raise BenchError(f"sizes must be integers >= {MIN_SIZE}, got {s!r}")
+        try:
+            f = float(s)
+        except (TypeError, ValueError):
+            raise BenchError(f"sizes must be integers >= {MIN_SIZE}, got {s!r}") from None
+        if not (math.isfinite(f) and f == int(f) and f >= MIN_SIZE):
+            raise BenchError(f"sizes must be integers >= {MIN_SIZE}, got {s!r}")
+        out.append(int(f))
+    if not out:
+        raise BenchError("sizes must name at least one model size")
+    return out
+
+
+def _check_backends(backends) -> list[str]:
+    from geodem.backends import ALLOWED, BACKENDS, _load_all, available
+
+    _load_all()
+    if backends is None:
+        return available()
+    if isinstance(backends, str):
+        backends = [backends]
+    out = []
+    for b in backends:
+        name = str(b).strip().lower()
+        if name not in ALLOWED:
+            raise BenchError(f"backend {b!r} is not known; allowed: {', '.join(ALLOWED)}")
+        if name == "auto":
+            from geodem.backends import resolve_name
+
+            name = resolve_name("auto")
+        elif not BACKENDS[name].is_available():
+            raise BenchError(f"backend {name!r} is not usable here: {BACKENDS[name].why_not()}; "
+                             f"usable: {', '.join(available())}")
+        if name not in out:
+            out.append(name)
+    if not out:
+        raise BenchError("backends must name at least one backend")
+    return out
+
+
+def _threads(backend: str):
+    if backend == "numba":
+        import numba
+
+        return int(numba.get_num_threads())
+    if backend == "numpy":
+        return 1
+    return None  # GPU: not a thread count
+
+
+def _device_sync(sim) -> None:
+    """Wait for queued GPU work so that timings are honest (no-op on the CPU backends)."""
+    xp = getattr(sim.backend, "xp", np)
+    if xp is not np:  # pragma: no cover - needs a GPU
+        xp.cuda.Device().synchronize()
+
+
+@contextmanager
+def _count_rebuilds():
+    """Count calls of ``neighbors.build_rows`` (the engine looks it up at call time)."""
+    from geodem.core import neighbors
+
+    orig = neighbors.build_rows
+    box = [0]
+
+    def counted(*args, **kw):
+        box[0] += 1
+        return orig(*args, **kw)
+
+    neighbors.build_rows = counted
+    try:
+        yield box
+    finally:
+        neighbors.build_rows = orig
+
+
+def _say(progress, msg):
+    if progress is not None:
+        progress(msg)
+
+
+def bench_one(state, backend: str, steps: int | None = None, progress=None) -> dict:
+    """Time ``Simulation.run`` of ``state`` (a copy is stepped) on ``backend``; one record."""
+    from geodem.core.engine import Simulation
+    from geodem.core.neighbors import row_counts
+
+    st = state.copy()
+    n = st.n
+    bytes_per_element = st.nbytes() / n
+    contacts = float(row_counts(st).mean())
+    sim = Simulation(st, backend=backend)
+    # warm-up: compiles the kernels on first use; not timed
+    t0 = time.perf_counter()
+    sim.run(2)
+    _device_sync(sim)
+    warm = time.perf_counter() - t0
+    if steps is None:
+        # calibration: the step time without compilation, to aim at TARGET_SECONDS
+        t0 = time.perf_counter()
+        sim.run(2)
+        _device_sync(sim)
+        per_step = max((time.perf_counter() - t0) / 2.0, 1e-9)
+        steps = max(MIN_STEPS, int(math.ceil(TARGET_SECONDS / per_step)))
+    with _count_rebuilds() as rebuilds:
+        t0 = time.perf_counter()
+        sim.run(steps)
+        _device_sync(sim)
+        wall = time.perf_counter() - t0
+    broken = int(sim.crack_log().size)
+    rec = {
+        "backend": backend,
+        "dim": st.dim,
+        "n": int(n),
+        "element_steps_per_s": n * steps / wall,
+        "bytes_per_element": bytes_per_element,
+        "contacts_per_element": contacts,
+        "steps": int(steps),
+        "wall_s": wall,
+        "threads": _threads(backend),
+        "rebuilds": int(rebuilds[0]),
+        "bonds_broken": broken,
+        "warmup_s": warm,
+    }
+    del sim, st
+    gc.collect()
+    return rec
+
+
+def run_bench(sizes=DEFAULT_SIZES, backends=None, steps=None, dim=3, seed=0, progress=None,
+              numpy_max=NUMPY_MAX) -> list[dict]:
+    """Time full steps of bonded specimens of each size on each backend.
+
+    Parameters
+    ----------
+    sizes: element counts (about; the lattice count is used), integers >= 100.
+    backends: names (``numba``, ``numpy``, ``cupy``, ``auto``); default: every backend usable here.
+        ``numpy`` is only run up to ``numpy_max`` elements (the reference is slow by design).
+    steps: timed steps per run; default: as many as take about 3 s (at least 3).
+    dim: 2 or 3. seed: specimen seed.
+    progress: ``callable(str)`` receiving progress and skip messages, or None.
+
+    Returns one record per (size, backend) that was run, with the keys ``backend, dim, n,
+    element_steps_per_s, bytes_per_element, contacts_per_element, steps, wall_s, threads,
+    rebuilds, bonds_broken, warmup_s``. ``bytes_per_element`` is ``state.nbytes() / n`` (all state
+    arrays); ``contacts_per_element`` the mean number of valid row entries.
+    """
+    sizes = _check_sizes(sizes)
+    names = _check_backends(backends)
+    if steps is not None:
+        if isinstance(steps, bool) or int(steps) != steps or int(steps) < 1:
+            raise BenchError(f"steps must be an integer >= 1, got {steps!r}")
+        steps = int(steps)
+    if dim not in (2, 3):
+        raise BenchError(f"dim must be 2 or 3, got {dim!r}")
+    records = []
+    for n in sizes:
+        todo = list(names)
+        if "numpy" in todo and n > numpy_max:
+            todo.remove("numpy")
+            _say(progress, f"numpy skipped at n={n:,}: the op-by-op NumPy reference is slow by "
+                           f"design and is only benchmarked up to {numpy_max:,} elements")
+        if not todo:
+            continue
+        need, have = estimated_memory(n), available_memory()
+        if have is not None and need > have:
+            _say(progress, f"size n={n:,} skipped: needs about {need / 2**30:.1f} GiB "
+                           f"(~{BYTES_PER_ELEMENT_ESTIMATE / 1000:.1f} KB per element), only "
+                           f"{have / 2**30:.1f} GiB available")
+            continue
+        _say(progress, f"building a {dim}-D bonded specimen of about {n:,} elements ...")
+        t0 = time.perf_counter()
+        try:
+            state = build_specimen(n, dim=dim, seed=seed)
+        except MemoryError:
+            gc.collect()
+            _say(progress, f"size n={n:,} skipped: out of memory while building the specimen")
+            continue
+        _say(progress, f"  built {state.n:,} elements in {time.perf_counter() - t0:.1f} s")
+        for b in todo:
+            _say(progress, f"  {b}: warm-up and timing ...")
+            try:
+                rec = bench_one(state, b, steps=steps, progress=progress)
+            except MemoryError:
+                gc.collect()
+                _say(progress, f"  {b} skipped at n={n:,}: out of memory")
+                continue
+            _say(progress, f"  {b}: {rec['element_steps_per_s']:.3g} element-steps/s "
+                           f"({rec['steps']} steps in {rec['wall_s']:.2f} s)")
+            records.append(rec)
+        del state
+        gc.collect()
+    return records

@@ -1,0 +1,789 @@
+"""Neighbour rows: cell-list build with exact per-pair state carry-over.
+
+Every element ``i`` owns a row ``nbr[i, :W]`` of neighbour indices, valid entries first
+(compact), padded with ``-1``. Each contact is stored in both rows (``j`` in row ``i`` iff
+``i`` in row ``j``); its state (``cstate``, ``fs``, ``brate``) sits beside it in the same
+column. See :mod:`geodem.core.state` for the meaning of the codes.
+
+Criteria used by :func:`build_rows` (the "contact range")
+    * unbonded entry ``(i, j)`` (``cstate == 0``) is present iff
+      ``|x_i - x_j|^2 <= (r_i + r_j + skin)^2`` (computed bit-identically from both sides,
+      so the rows stay symmetric);
+    * an entry with ``cstate != 0`` (bonded, or broken but not yet harvested) is NEVER
+      dropped, however far the partners drift;
+    * per-pair state is carried over bitwise by pair identity: for a new entry ``(i, j)``
+      the old row of ``i`` is searched for ``j``; new pairs get ``cstate 0, fs 0, brate 1``;
+    * rows come out sorted by neighbour index (deterministic whatever the thread count
+      or the old column order) and compact;
+    * a row never loses entries for lack of room: the width grows instead (to the next
+      multiple of 4 at or above the largest row count, never below the current width).
+
+The rows stay valid until some element has moved more than ``skin / 2`` from its
+position at the last build (``x_ref``): two elements approaching each other then close at
+most ``skin``. :func:`needs_rebuild` implements that test (with an optional look-ahead).
+Radii must not grow between builds (or the skin must cover the growth).
+
+All heavy work is in numba kernels (``cache=True``, ``parallel=True`` where useful).
+Build cost is O(N) with a cell list whose cell size is at least ``2*max(r) + skin``; the
+number of cells is capped at ~2N by enlarging cells so sparse or degenerate (line,
+plane) models never allocate a huge grid.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from geodem.core.state import ACCUMULATORS, ELEMENT_SCALAR, ELEMENT_VEC, State
+
+__all__ = [
+    "build_rows",
+    "needs_rebuild",
+    "rows_from_pairs",
+    "spatial_sort",
+    "row_counts",
+    "pairs",
+    "check_rows",
+    "cell_grid",
+]
+
+_BLOCK = 256  # elements per parallel chunk (thread-local scratch is allocated per chunk)
+_CELL_SAFETY = 1.0 + 1e-9  # cell size margin against rounding in floor((x - lo) / h)
+
+
+def _ceil4(n: int) -> int:
+    return int(-(-int(n) // 4) * 4)
+
+
+# ----------------------------------------------------------------------------- cell list
+
+@njit(cache=True)
+def _bbox(x):
+    # one sequential pass (~4 ms at 1e6); numpy's axis-0 min/max on (N, 3) is ~10x slower
+    n, dim = x.shape
+    lo = x[0].copy()
+    hi = x[0].copy()
+    for i in range(1, n):
+        for d in range(dim):
+            v = x[i, d]
+            if v < lo[d]:
+                lo[d] = v
+            if v > hi[d]:
+                hi[d] = v
+    return lo, hi
+
+
+def cell_grid(x: np.ndarray, rmax: float, skin: float, cap: int | None = None):
+    """Uniform cell grid over the bounding box of ``x``.
+
+    Cell size ``h >= (2*rmax + skin)`` so every pair in contact range lies in the same or an
+    adjacent cell (9 cells in 2-D, 27 in 3-D). The number of cells is kept ``<= cap``
+    (default ``max(2N, 1)``) by enlarging ``h``: sparse models or huge boxes never allocate
+    a big grid, and a flat extent (all elements on a line or plane) gets one cell layer.
+
+    Returns ``(lo, h, nc)`` with ``lo`` (dim,) the box corner, ``h`` the cell size and
+    ``nc`` a 3-tuple of cell counts (``nc[2] == 1`` in 2-D).
+    """
+    n, dim = x.shape
+    if cap is None:
+        cap = max(2 * n, 1)
+    lo, hi = _bbox(x) if n else (np.zeros(dim), np.zeros(dim))
+    ext = hi - lo
+    h = (2.0 * float(rmax) + float(skin)) * _CELL_SAFETY
+    if not h > 0.0:
+        h = 1.0
+    # counts in floating point first: L/h may be astronomically large for sparse models
+    while True:
+        ncf = np.floor(ext / h) + 1.0
+        tot = float(np.prod(ncf))
+        if tot <= cap:
+            break
+        h *= max(1.01, (tot / cap) ** (1.0 / dim))
+    nc = [int(c) for c in ncf] + [1] * (3 - dim)
+    return np.ascontiguousarray(lo, dtype=np.float64), float(h), (nc[0], nc[1], nc[2])
+
+
+@njit(cache=True, parallel=True)
+def _cell_ids(x, lo, h, nc0, nc1, nc2):
+    n, dim = x.shape
+    cell = np.empty(n, np.int64)
+    ncs = (nc0, nc1, nc2)
+    for i in prange(n):
+        c = np.int64(0)
+        stride = np.int64(1)
+        for d in range(dim):
+            q = np.int64(math.floor((x[i, d] - lo[d]) / h))
+            if q < 0:
+                q = 0
+            elif q >= ncs[d]:
+                q = ncs[d] - 1
+            c += q * stride
+            stride *= ncs[d]
+        cell[i] = c
+    return cell
+
+
+@njit(cache=True)
+def _counting_sort(cell, ncell):
+    # sequential and stable: element order inside a cell is by index (deterministic)
+    n = cell.shape[0]
+    start = np.zeros(ncell + 1, np.int64)
+    for i in range(n):
+        start[cell[i] + 1] += 1
+    for c in range(ncell):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        c = cell[i]
+        order[fill[c]] = i
+        fill[c] += 1
+    return order, start
+
+
+@njit(cache=True, parallel=True)
+def _gather(x, r, order):
+    # cell-ordered packed copy [x, y, z (0 in 2-D), r]: candidate loops read one
+    # contiguous stream, and the fixed 3 components let the distance be unrolled
+    n, dim = x.shape
+    xr = np.zeros((n, 4))
+    for p in prange(n):
+        i = order[p]
+        for d in range(dim):
+            xr[p, d] = x[i, d]
+        xr[p, 3] = r[i]
+    return xr
+
+
+def _cell_list(x, r, skin):
+    n, dim = x.shape
+    rmax = float(r.max()) if n else 0.0
+    lo, h, nc = cell_grid(x, rmax, skin)
+    cell = _cell_ids(x, lo, h, nc[0], nc[1], nc[2])
+    order, start = _counting_sort(cell, nc[0] * nc[1] * nc[2])
+    xr = _gather(x, r, order)
+    return nc, cell, order, start, xr
+
+
+# ----------------------------------------------------------------------------- build
+
+
+@njit(cache=True, inline="always")
+def _in_range(x, r, skin, i, j):
+    # the contact-range predicate, same arithmetic as the candidate loop of the kernel
+    # (there the 2-D third term is 0*0, and a + 0.0 == a exactly); symmetric in (i, j)
+    t0 = x[i, 0] - x[j, 0]
+    t1 = x[i, 1] - x[j, 1]
+    d2 = t0 * t0 + t1 * t1
+    if x.shape[1] == 3:
+        t2 = x[i, 2] - x[j, 2]
+        d2 = d2 + t2 * t2
+    c = r[i] + r[j] + skin
+    return d2 <= c * c
+
+
+@njit(cache=True, parallel=True)
+def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
+                    nbr, cst, fs, br):
+    """Rebuild every row in place; returns the wanted entry count of each row.
+
+    Row ``i`` reads only its own old row (copied to scratch first), so the update is in
+    place and race free. A row whose count exceeds the width is left untouched (the caller
+    grows the width and calls again; rebuilding already rebuilt rows is idempotent).
+    """
+    n, dim = x.shape
+    w = nbr.shape[1]
+    counts = np.zeros(n, np.int32)
+    nblk = (n + _BLOCK - 1) // _BLOCK
+    one = np.float32(1.0)
+    for b in prange(nblk):
+        onb = np.empty(w, np.int32)
+        ocs = np.empty(w, np.int32)
+        ofs = np.empty((w, dim))
+        obr = np.empty(w, np.float32)
+        new = np.empty(w, np.int32)
+        p1 = min(n, (b + 1) * _BLOCK)
+        for pp in range(b * _BLOCK, p1):
+            # visit elements in cell order: neighbouring cells stay in cache
+            i = order[pp]
+            # old row -> scratch (tolerates holes, result is compact anyway)
+            m = 0
+            for k in range(w):
+                j = nbr[i, k]
+                if j >= 0:
+                    onb[m] = j
+                    ocs[m] = cst[i, k]
+                    for d in range(dim):
+                        ofs[m, d] = fs[i, k, d]
+                    obr[m] = br[i, k]
+                    m += 1
+            # geometric neighbours from the 9 / 27 surrounding cells
+            c = cell[i]
+            cx = c % nc0
+            cy = (c // nc0) % nc1
+            cz = c // (nc0 * nc1)
+            xi0 = xr[pp, 0]
+            xi1 = xr[pp, 1]
+            xi2 = xr[pp, 2]
+            ri = xr[pp, 3]
+            cnt = 0
+            x0 = max(cx - 1, 0)
+            x1 = min(cx + 1, nc0 - 1)
+            for zz in range(max(cz - 1, 0), min(cz + 2, nc2)):
+                for yy in range(max(cy - 1, 0), min(cy + 2, nc1)):
+                    # cells x0..x1 of this (y, z) line are consecutive: one element range
+                    base = nc0 * (yy + nc1 * zz)
+                    for p in range(start[base + x0], start[base + x1 + 1]):
+                        t0 = xi0 - xr[p, 0]
+                        t1 = xi1 - xr[p, 1]
+                        t2 = xi2 - xr[p, 2]
+                        d2 = t0 * t0 + t1 * t1 + t2 * t2
+                        cut = ri + xr[p, 3] + skin
+                        if d2 <= cut * cut and p != pp:
+                            if cnt < w:
+                                new[cnt] = order[p]
+                            cnt += 1
+            # bonded / broken-not-harvested entries are never dropped
+            for q in range(m):
+                if ocs[q] != 0:
+                    j = onb[q]
+                    if not _in_range(x, r, skin, i, j):
+                        if cnt < w:
+                            new[cnt] = j
+                        cnt += 1
+            counts[i] = cnt
+            if cnt > w:
+                continue
+            # sort by neighbour index (deterministic), drop duplicates of a corrupt old row
+            for a in range(1, cnt):
+                v = new[a]
+                bb = a - 1
+                while bb >= 0 and new[bb] > v:
+                    new[bb + 1] = new[bb]
+                    bb -= 1
+                new[bb + 1] = v
+            k = 0
+            for a in range(cnt):
+                if k > 0 and new[a] == new[k - 1]:
+                    continue
+                new[k] = new[a]
+                k += 1
+            cnt = k
+            counts[i] = cnt
+            # write the row, carrying the state over by pair identity (bitwise copies)
+            for a in range(cnt):
+                j = new[a]
+                nbr[i, a] = j
+                found = -1
+                for q in range(m):
+                    if onb[q] == j:
+                        found = q
+                        break
+                if found >= 0:
+                    cst[i, a] = ocs[found]
+                    for d in range(dim):
+                        fs[i, a, d] = ofs[found, d]
+                    br[i, a] = obr[found]
+                else:
+                    cst[i, a] = 0
+                    for d in range(dim):
+                        fs[i, a, d] = 0.0
+                    br[i, a] = one
+            for a in range(cnt, w):
+                nbr[i, a] = -1
+                cst[i, a] = 0
+                for d in range(dim):
+                    fs[i, a, d] = 0.0
+                br[i, a] = one
+    return counts
+
+
+def _empty_rows(n, w, dim):
+    return (np.full((n, w), -1, np.int32), np.zeros((n, w), np.int32),
+            np.zeros((n, w, dim)), np.ones((n, w), np.float32))
+
+
+def _set_width(state: State, w: int) -> None:
+    """Replace the row arrays by width-``w`` copies (pads or truncates columns)."""
+    if w == state.width:
+        return
+    n, dim = state.n, state.dim
+    nbr, cst, fs, br = _empty_rows(n, w, dim)
+    c = min(w, state.width)
+    nbr[:, :c] = state.nbr[:, :c]
+    cst[:, :c] = state.cstate[:, :c]
+    fs[:, :c] = state.fs[:, :c]
+    br[:, :c] = state.brate[:, :c]
+    state.nbr, state.cstate, state.fs, state.brate = nbr, cst, fs, br
+
+
+def _normalize_rows(state: State) -> None:
+    # kernels are compiled for these exact dtypes / layouts
+    n, dim = state.n, state.dim
+    specs = (("nbr", np.int32, (n, -1)), ("cstate", np.int32, (n, -1)),
+             ("fs", np.float64, (n, -1, dim)), ("brate", np.float32, (n, -1)))
+    w = state.nbr.shape[1] if state.nbr.ndim == 2 else -1
+    for name, dt, shape in specs:
+        a = getattr(state, name)
+        want = tuple(w if s == -1 else s for s in shape)
+        if a.shape != want:
+            raise ValueError(f"state.{name} has shape {a.shape}, expected {want}")
+        if a.dtype != dt or not a.flags.c_contiguous:
+            setattr(state, name, np.ascontiguousarray(a, dtype=dt))
+
+
+def _check_skin(skin) -> float:
+    try:
+        s = float(skin)
+    except (TypeError, ValueError):
+        raise ValueError(f"skin must be a finite number in (0, inf), got {skin!r}") from None
+    if not (s > 0.0 and math.isfinite(s)):
+        raise ValueError(f"skin must be a finite number in (0, inf), got {skin!r}")
+    return s
+
+
+def _check_positions(x: np.ndarray) -> None:
+    if x.size and not np.isfinite(x).all():
+        bad = int(np.flatnonzero(~np.isfinite(x).all(axis=1))[0])
+        raise ValueError(f"position of element {bad} is not finite: x[{bad}] = {x[bad]}")
+
+
+def build_rows(state: State, skin: float | None = None, width: int | None = None) -> None:
+    """Rebuild the contact rows of ``state`` from a cell list, carrying per-pair state.
+
+    New row of ``i`` = {j != i : |x_i - x_j| <= r_i + r_j + skin}
+    union {old entries of row i with cstate != 0}, sorted by ``j``. For each entry the
+    old row of ``i`` is searched for ``j``: ``cstate``, ``fs`` and ``brate`` are copied
+    bitwise; new pairs get ``cstate 0``, ``fs 0``, ``brate 1``. Old rows are assumed
+    symmetric (as all functions here produce them); the result is then symmetric too.
+
+    ``skin`` (default ``state.skin``) must be finite and > 0. ``width`` (default: the
+    current width) is the wanted row width; it grows to the next multiple of 4 at or
+    above the largest row count when a row would not fit - entries are never dropped.
+    The row arrays are updated in place when the width does not change, otherwise new
+    arrays are assigned to ``state``. Sets ``state.x_ref[:] = state.x`` and
+    ``state.skin = skin``.
+
+    Raises ValueError for a bad ``skin`` or ``width`` or a non-finite position (naming the
+    first bad element).
+    """
+    skin = _check_skin(state.skin if skin is None else skin)
+    if width is not None:
+        if isinstance(width, bool) or not isinstance(width, (int, np.integer)) or width < 1:
+            raise ValueError(f"width must be an integer >= 1, got {width!r}")
+        width = int(width)
+    x = np.ascontiguousarray(state.x, dtype=np.float64)
+    r = np.ascontiguousarray(state.r, dtype=np.float64)
+    _check_positions(x)
+    _normalize_rows(state)
+    n = state.n
+    w_cur = state.width
+    w_target = w_cur if width is None else width
+    w_build = max(w_cur, w_target)
+    _set_width(state, w_build)
+    if n:
+        nc, cell, order, start, xr = _cell_list(x, r, skin)
+        args = (x, r, skin, nc[0], nc[1], nc[2], cell, order, start, xr)
+        counts = _rebuild_kernel(*args, state.nbr, state.cstate, state.fs, state.brate)
+        mx = int(counts.max())
+        while mx > state.width:
+            # overflowing rows were left untouched; the others are rebuilt idempotently
+            _set_width(state, max(state.width, _ceil4(mx)))
+            counts = _rebuild_kernel(*args, state.nbr, state.cstate, state.fs, state.brate)
+            mx = int(counts.max())
+        if state.width > w_target:  # a smaller width was asked for: shrink if it fits
+            _set_width(state, max(w_target, _ceil4(mx)))
+    state.x_ref[...] = state.x
+    state.skin = skin
+
+
+# ----------------------------------------------------------------------------- rebuild test
+
+
+@njit(cache=True, parallel=True)
+def _max_disp_speed(x, x_ref, v):
+    n, dim = x.shape
+    md = 0.0
+    mv = 0.0
+    for i in prange(n):
+        d2 = 0.0
+        v2 = 0.0
+        for d in range(dim):
+            t = x[i, d] - x_ref[i, d]
+            d2 += t * t
+            v2 += v[i, d] * v[i, d]
+        if d2 != d2:  # NaN: force a rebuild (which then reports the bad element)
+            d2 = np.inf
+        if v2 != v2:
+            v2 = np.inf
+        md = max(md, d2)
+        mv = max(mv, v2)
+    return md, mv
+
+
+def needs_rebuild(state: State, steps_ahead: int = 0) -> bool:
+    """True when the rows may miss a contact within the next ``steps_ahead`` steps.
+
+    Criterion: ``max_i |x_i - x_ref_i| + steps_ahead * dt * max_i |v_i| > skin / 2``.
+    (Two elements each within ``skin/2`` of their reference positions cannot have closed
+    more than ``skin``.) The look-ahead lets the engine test only every few steps. Always
+    True when the state has never been built (``skin <= 0``) or holds NaN.
+    """
+    if state.n == 0:
+        return False
+    skin = float(state.skin)
+    if not (skin > 0.0 and math.isfinite(skin)):
+        return True
+    md2, mv2 = _max_disp_speed(state.x, state.x_ref, state.v)
+    reach = math.sqrt(md2) + max(int(steps_ahead), 0) * abs(float(state.dt)) * math.sqrt(mv2)
+    return not (reach <= 0.5 * skin)
+
+
+# ----------------------------------------------------------------------------- explicit pairs
+
+
+@njit(cache=True)
+def _fill_pairs(pi, pj, code, pbr, start, nbr, cst, br):
+    # sequential scatter of both directions (deterministic); rows sorted afterwards
+    fill = start[:-1].copy()
+    for p in range(pi.shape[0]):
+        a = pi[p]
+        b = pj[p]
+        k = fill[a]
+        nbr[a, k - start[a]] = b
+        cst[a, k - start[a]] = code
+        br[a, k - start[a]] = pbr[p]
+        fill[a] += 1
+        k = fill[b]
+        nbr[b, k - start[b]] = a
+        cst[b, k - start[b]] = code
+        br[b, k - start[b]] = pbr[p]
+        fill[b] += 1
+
+
+@njit(cache=True, parallel=True)
+def _sort_rows(nbr, cst, br, counts):
+    """Sort each row by neighbour index (carrying cstate, brate). Returns, per row, the
+    column of the first duplicate neighbour or -1."""
+    n = nbr.shape[0]
+    dup = np.full(n, -1, np.int64)
+    for i in prange(n):
+        c = counts[i]
+        for a in range(1, c):
+            v = nbr[i, a]
+            s = cst[i, a]
+            t = br[i, a]
+            b = a - 1
+            while b >= 0 and nbr[i, b] > v:
+                nbr[i, b + 1] = nbr[i, b]
+                cst[i, b + 1] = cst[i, b]
+                br[i, b + 1] = br[i, b]
+                b -= 1
+            nbr[i, b + 1] = v
+            cst[i, b + 1] = s
+            br[i, b + 1] = t
+        for a in range(1, c):
+            if nbr[i, a] == nbr[i, a - 1]:
+                dup[i] = a
+                break
+    return dup
+
+
+def rows_from_pairs(state: State, i, j, bonded: bool = True, brate=None) -> None:
+    """Replace all rows by an explicit list of unordered pairs ``(i[p], j[p])``.
+
+    Both directions are inserted; ``cstate`` is 1 if ``bonded`` else 0, ``brate`` per pair
+    (scalar or (P,) array, default 1.0), ``fs`` zero. Rows come out sorted by neighbour
+    index. The width becomes ``max(current, next multiple of 4 >= largest row count)``;
+    new row arrays are assigned to ``state``. ``x_ref`` and ``skin`` are not touched.
+
+    Raises ValueError for mismatched shapes, non-integer or out-of-range indices, self
+    pairs and pairs given more than once (in either orientation); ``state`` is unchanged
+    then.
+    """
+    n, dim = state.n, state.dim
+    pi = np.asarray(i)
+    pj = np.asarray(j)
+    if pi.ndim != 1 or pj.shape != pi.shape:
+        raise ValueError(f"i and j must be 1-D arrays of equal length, got {pi.shape}, {pj.shape}")
+    npair = pi.shape[0]
+    for name, a in (("i", pi), ("j", pj)):
+        if npair and not np.issubdtype(a.dtype, np.integer):
+            raise ValueError(f"{name} must hold integer element indices, got dtype {a.dtype}")
+    pi = pi.astype(np.int64)
+    pj = pj.astype(np.int64)
+    bad = np.flatnonzero((pi < 0) | (pi >= n) | (pj < 0) | (pj >= n))
+    if bad.size:
+        p = int(bad[0])
+        raise ValueError(f"pair {p} = ({pi[p]}, {pj[p]}) has an index out of range [0, {n})")
+    bad = np.flatnonzero(pi == pj)
+    if bad.size:
+        p = int(bad[0])
+        raise ValueError(f"pair {p} = ({pi[p]}, {pj[p]}) is a self pair")
+    if brate is None:
+        pbr = np.ones(npair, np.float32)
+    else:
+        pbr = np.asarray(brate, dtype=np.float32)
+        if pbr.ndim == 0:
+            pbr = np.full(npair, pbr, np.float32)
+        elif pbr.shape != (npair,):
+            raise ValueError(f"brate must be a scalar or have shape ({npair},), got {pbr.shape}")
+        pbr = np.ascontiguousarray(pbr)
+    counts = (np.bincount(pi, minlength=n) + np.bincount(pj, minlength=n)).astype(np.int64)
+    mx = int(counts.max()) if n else 0
+    w = max(state.width, _ceil4(mx))
+    start = np.zeros(n + 1, np.int64)
+    np.cumsum(counts, out=start[1:])
+    nbr, cst, fs, br = _empty_rows(n, w, dim)
+    if npair:
+        _fill_pairs(pi, pj, np.int32(1 if bonded else 0), pbr, start, nbr, cst, br)
+        dup = _sort_rows(nbr, cst, br, counts)
+        rows = np.flatnonzero(dup >= 0)
+        if rows.size:
+            a = int(rows[0])
+            b = int(nbr[a, dup[a]])
+            raise ValueError(f"pair ({a}, {b}) is given more than once")
+    state.nbr, state.cstate, state.fs, state.brate = nbr, cst, fs, br
+
+
+# ----------------------------------------------------------------------------- spatial sort
+
+@njit(cache=True, inline="always")
+def _spread2(v):
+    # 32-bit -> even bits of 64
+    v &= np.uint64(0xFFFFFFFF)
+    v = (v | (v << np.uint64(16))) & np.uint64(0x0000FFFF0000FFFF)
+    v = (v | (v << np.uint64(8))) & np.uint64(0x00FF00FF00FF00FF)
+    v = (v | (v << np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    v = (v | (v << np.uint64(2))) & np.uint64(0x3333333333333333)
+    v = (v | (v << np.uint64(1))) & np.uint64(0x5555555555555555)
+    return v
+
+
+@njit(cache=True, inline="always")
+def _spread3(v):
+    # 21-bit -> every third bit of 63
+    v &= np.uint64(0x1FFFFF)
+    v = (v | (v << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
+    v = (v | (v << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+    v = (v | (v << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+    v = (v | (v << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+    v = (v | (v << np.uint64(2))) & np.uint64(0x1249249249249249)
+    return v
+
+
+@njit(cache=True, parallel=True)
+def _morton_keys(x, lo, scale):
+    n, dim = x.shape
+    keys = np.empty(n, np.uint64)
+    qmax = 2097151.0 if dim == 3 else 4294967295.0
+    for i in prange(n):
+        key = np.uint64(0)
+        for d in range(dim):
+            q = (x[i, d] - lo[d]) * scale[d]
+            if q < 0.0:
+                q = 0.0
+            elif q > qmax:
+                q = qmax
+            u = np.uint64(q)
+            if dim == 3:
+                key |= _spread3(u) << np.uint64(d)
+            else:
+                key |= _spread2(u) << np.uint64(d)
+        keys[i] = key
+    return keys
+
+
+@njit(cache=True, parallel=True)
+def _permute_nbr(nbr, perm, inv):
+    n, w = nbr.shape
+    out = np.empty_like(nbr)
+    for k in prange(n):
+        src = perm[k]
+        for a in range(w):
+            j = nbr[src, a]
+            out[k, a] = inv[j] if j >= 0 else -1
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _take_rows(src, perm, dst):
+    n, w = src.shape
+    for k in prange(n):
+        s = perm[k]
+        for a in range(w):
+            dst[k, a] = src[s, a]
+
+
+@njit(cache=True, parallel=True)
+def _copy_rows(src, dst):
+    n, w = src.shape
+    for k in prange(n):
+        for a in range(w):
+            dst[k, a] = src[k, a]
+
+
+def spatial_sort(state: State) -> np.ndarray:
+    """Reorder all elements in Morton (Z-) order of their positions.
+
+    Positions are quantised over the bounding box (21 bits per axis in 3-D, 32 in 2-D) and
+    sorted stably by the interleaved key (ties by old index: deterministic). Every
+    per-element array (``state.array_names()``: element vectors and scalars, group, rows,
+    accumulators) is permuted in place; neighbour indices are relabelled through the
+    inverse permutation, so contacts and their state are preserved exactly and rows stay
+    compact (column order inside a row is kept). Returns ``perm``: new element ``k`` is
+    old element ``perm[k]``.
+    """
+    n, dim = state.n, state.dim
+    if n == 0:
+        return np.zeros(0, np.int64)
+    x = np.ascontiguousarray(state.x, dtype=np.float64)
+    _check_positions(x)
+    _normalize_rows(state)
+    lo, hi = _bbox(x)
+    ext = hi - lo
+    qmax = 2097151.0 if dim == 3 else 4294967295.0
+    scale = np.where(ext > 0, qmax / np.where(ext > 0, ext, 1.0), 0.0)
+    keys = _morton_keys(x, lo, np.ascontiguousarray(scale))
+    perm = np.argsort(keys, kind="stable").astype(np.int64)
+    inv = np.empty(n, np.int32)
+    inv[perm] = np.arange(n, dtype=np.int32)
+    state.nbr[...] = _permute_nbr(state.nbr, perm, inv)
+    names = ELEMENT_VEC + ELEMENT_SCALAR + ("group", "cstate", "fs", "brate") + ACCUMULATORS
+    # one scratch buffer for all arrays (a[perm] would allocate, and page-fault, each time);
+    # parallel row gather (numpy's take is single threaded and slow on (N, W, dim))
+    scratch = np.empty(max(getattr(state, k).nbytes for k in names), np.uint8)
+    for name in names:
+        a = getattr(state, name)
+        if not a.flags.c_contiguous:
+            raise ValueError(f"state.{name} must be C-contiguous")
+        a2 = a.reshape(n, -1)
+        tmp = scratch[:a.nbytes].view(a.dtype).reshape(a2.shape)
+        _take_rows(a2, perm, tmp)
+        _copy_rows(tmp, a2)
+    return perm
+
+
+# ----------------------------------------------------------------------------- queries
+
+
+@njit(cache=True, parallel=True)
+def _row_counts(nbr):
+    n, w = nbr.shape
+    out = np.zeros(n, np.int32)
+    for i in prange(n):
+        c = 0
+        for a in range(w):
+            if nbr[i, a] >= 0:
+                c += 1
+        out[i] = c
+    return out
+
+
+def row_counts(state: State) -> np.ndarray:
+    """Number of valid entries (``nbr >= 0``) of each row, int32 (N,)."""
+    return _row_counts(state.nbr)
+
+
+@njit(cache=True, parallel=True)
+def _pairs(nbr):
+    n, w = nbr.shape
+    cnt = np.zeros(n + 1, np.int64)
+    for i in prange(n):
+        c = 0
+        for a in range(w):
+            if nbr[i, a] > i:
+                c += 1
+        cnt[i + 1] = c
+    for i in range(n):
+        cnt[i + 1] += cnt[i]
+    m = cnt[n]
+    pi = np.empty(m, np.int32)
+    pj = np.empty(m, np.int32)
+    pk = np.empty(m, np.int32)
+    for i in prange(n):
+        p = cnt[i]
+        for a in range(w):
+            j = nbr[i, a]
+            if j > i:
+                pi[p] = i
+                pj[p] = j
+                pk[p] = a
+                p += 1
+    return pi, pj, pk
+
+
+def pairs(state: State):
+    """Each contact once: ``(i, j, k)`` int32 arrays with ``i < j`` and ``nbr[i, k] == j``.
+
+    Ordered by ``i`` then column ``k`` (deterministic). Per-pair state is
+    ``state.cstate[i, k]``, ``state.fs[i, k]``, ``state.brate[i, k]``.
+    """
+    return _pairs(state.nbr)
+
+
+@njit(cache=True, parallel=True)
+def _check_rows(nbr, cst, br):
+    # per row: 0 ok, 1 hole (not compact), 2 out of range, 3 self, 4 duplicate,
+    # 5 missing mirror entry, 6 mirror cstate differs, 7 mirror brate differs
+    n, w = nbr.shape
+    err = np.zeros(n, np.int32)
+    col = np.zeros(n, np.int32)
+    for i in prange(n):
+        seen_empty = False
+        for a in range(w):
+            j = nbr[i, a]
+            e = 0
+            if j < 0:
+                seen_empty = True
+                continue
+            if seen_empty:
+                e = 1
+            elif j >= n:
+                e = 2
+            elif j == i:
+                e = 3
+            else:
+                for b in range(a):
+                    if nbr[i, b] == j:
+                        e = 4
+                if e == 0:
+                    q = -1
+                    for b in range(w):
+                        if nbr[j, b] == i:
+                            q = b
+                            break
+                    if q < 0:
+                        e = 5
+                    elif cst[j, q] != cst[i, a]:
+                        e = 6
+                    elif br[j, q] != br[i, a]:
+                        e = 7
+            if e != 0:
+                err[i] = e
+                col[i] = a
+                break
+    return err, col
+
+
+_CHECK_MSG = {1: "row is not compact (entry after a -1)", 2: "neighbour index out of range",
+              3: "self contact", 4: "duplicate neighbour", 5: "mirror entry missing",
+              6: "cstate differs from the mirror entry", 7: "brate differs from the mirror entry"}
+
+
+def check_rows(state: State) -> None:
+    """Validate the row invariants; raise ValueError naming the first bad row/column.
+
+    Checks: compact rows, indices in range, no self contacts, no duplicates, every entry
+    mirrored (``j`` in row ``i`` iff ``i`` in row ``j``) with equal ``cstate`` and
+    ``brate`` on both sides. (``fs`` is not compared: its sign convention belongs to the
+    force law.)
+    """
+    err, col = _check_rows(state.nbr, state.cstate, state.brate)
+    bad = np.flatnonzero(err)
+    if bad.size:
+        i = int(bad[0])
+        k = int(col[i])
+        raise ValueError(f"row {i}, column {k} (nbr={int(state.nbr[i, k])}): "
+                         f"{_CHECK_MSG[int(err[i])]}")
