@@ -90,6 +90,7 @@ class Simulation:
         state.dt = float(dt)
         self.check_every = int(check_every)
         self.overlap_limit = overlap_limit
+        self.rebuilds = 0
         self.cracks = {"i": [], "j": [], "time": [], "type": []}
         self.backend = select(backend)
         if state.step == 0:
@@ -134,6 +135,7 @@ class Simulation:
                 b.pull(("nbr", "cstate", "fs", "brate"))
                 self._harvest_host()
                 neighbors.build_rows(s)
+                self.rebuilds += 1
                 b.push()
                 return
         self._harvest()
@@ -284,6 +286,7 @@ class Simulation:
         sim.state = state
         sim.check_every = int(extra["check_every"])
         sim.overlap_limit = 0.5
+        sim.rebuilds = 0
         sim.cracks = extra["cracks"]
         sim._eg0, sim._emech0 = extra["eg0"], extra["emech0"]
         sim.backend = select(backend)

@@ -50,6 +50,7 @@ __all__ = [
 
 _BLOCK = 256  # elements per parallel chunk (thread-local scratch is allocated per chunk)
 _CELL_SAFETY = 1.0 + 1e-9  # cell size margin against rounding in floor((x - lo) / h)
+_ONE_F32_BITS = int(np.array(1.0, np.float32).view(np.int32))  # brate default, as bits
 
 
 def _ceil4(n: int) -> int:
@@ -188,6 +189,8 @@ def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
                     nbr, cst, fs, br):
     """Rebuild every row in place; returns the wanted entry count of each row.
 
+    ``fs`` (int64) and ``br`` (int32) are bit views of the float arrays.
+
     Row ``i`` reads only its own old row (copied to scratch first), so the update is in
     place and race free. A row whose count exceeds the width is left untouched (the caller
     grows the width and calls again; rebuilding already rebuilt rows is idempotent).
@@ -196,12 +199,12 @@ def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
     w = nbr.shape[1]
     counts = np.zeros(n, np.int32)
     nblk = (n + _BLOCK - 1) // _BLOCK
-    one = np.float32(1.0)
+    one = np.int32(_ONE_F32_BITS)
     for b in prange(nblk):
         onb = np.empty(w, np.int32)
         ocs = np.empty(w, np.int32)
-        ofs = np.empty((w, dim))
-        obr = np.empty(w, np.float32)
+        ofs = np.empty((w, dim), np.int64)
+        obr = np.empty(w, np.int32)
         new = np.empty(w, np.int32)
         p1 = min(n, (b + 1) * _BLOCK)
         for pp in range(b * _BLOCK, p1):
@@ -271,31 +274,44 @@ def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
                 k += 1
             cnt = k
             counts[i] = cnt
-            # write the row, carrying the state over by pair identity (bitwise copies)
+            # write the row, carrying the state over by pair identity. fs / brate arrive as
+            # integer views of their bits: copies and compares are bitwise exact. Writes
+            # are skipped where memory already holds the value (rows mostly unchanged:
+            # less memory traffic, and untouched calloc pages of a fresh state stay
+            # unmapped).
             for a in range(cnt):
                 j = new[a]
-                nbr[i, a] = j
                 found = -1
                 for q in range(m):
                     if onb[q] == j:
                         found = q
                         break
+                if nbr[i, a] != j:
+                    nbr[i, a] = j
                 if found >= 0:
-                    cst[i, a] = ocs[found]
-                    for d in range(dim):
-                        fs[i, a, d] = ofs[found, d]
-                    br[i, a] = obr[found]
+                    vc = ocs[found]
+                    vb = obr[found]
                 else:
-                    cst[i, a] = 0
-                    for d in range(dim):
-                        fs[i, a, d] = 0.0
-                    br[i, a] = one
-            for a in range(cnt, w):
-                nbr[i, a] = -1
-                cst[i, a] = 0
+                    vc = 0
+                    vb = one
+                if cst[i, a] != vc:
+                    cst[i, a] = vc
+                if br[i, a] != vb:
+                    br[i, a] = vb
                 for d in range(dim):
-                    fs[i, a, d] = 0.0
-                br[i, a] = one
+                    vf = ofs[found, d] if found >= 0 else 0
+                    if fs[i, a, d] != vf:
+                        fs[i, a, d] = vf
+            for a in range(cnt, w):
+                if nbr[i, a] != -1:
+                    nbr[i, a] = -1
+                if cst[i, a] != 0:
+                    cst[i, a] = 0
+                if br[i, a] != one:
+                    br[i, a] = one
+                for d in range(dim):
+                    if fs[i, a, d] != 0:
+                        fs[i, a, d] = 0
     return counts
 
 
@@ -331,6 +347,11 @@ def _normalize_rows(state: State) -> None:
             raise ValueError(f"state.{name} has shape {a.shape}, expected {want}")
         if a.dtype != dt or not a.flags.c_contiguous:
             setattr(state, name, np.ascontiguousarray(a, dtype=dt))
+
+
+def _row_bits(state: State):
+    # same memory, integer dtypes: the kernel moves per-pair state bit for bit
+    return state.nbr, state.cstate, state.fs.view(np.int64), state.brate.view(np.int32)
 
 
 def _check_skin(skin) -> float:
@@ -385,12 +406,12 @@ def build_rows(state: State, skin: float | None = None, width: int | None = None
     if n:
         nc, cell, order, start, xr = _cell_list(x, r, skin)
         args = (x, r, skin, nc[0], nc[1], nc[2], cell, order, start, xr)
-        counts = _rebuild_kernel(*args, state.nbr, state.cstate, state.fs, state.brate)
+        counts = _rebuild_kernel(*args, *_row_bits(state))
         mx = int(counts.max())
         while mx > state.width:
             # overflowing rows were left untouched; the others are rebuilt idempotently
             _set_width(state, max(state.width, _ceil4(mx)))
-            counts = _rebuild_kernel(*args, state.nbr, state.cstate, state.fs, state.brate)
+            counts = _rebuild_kernel(*args, *_row_bits(state))
             mx = int(counts.max())
         if state.width > w_target:  # a smaller width was asked for: shrink if it fits
             _set_width(state, max(w_target, _ceil4(mx)))

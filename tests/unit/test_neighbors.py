@@ -288,7 +288,9 @@ def test_width_growth_keeps_state_of_bonds():
     br = np.linspace(0.5, 1.5, int(sel.sum()))
     nb.rows_from_pairs(st, i[sel], j[sel], bonded=True, brate=br)
     before = directed_entries(st)
+    w0 = st.width
     nb.build_rows(st, skin=0.3)
+    assert st.width > w0  # the growth path (rows rebuilt twice) was taken
     after = directed_entries(st)
     for key, val in before.items():
         assert after[key] == val

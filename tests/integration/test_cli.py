@@ -1,0 +1,127 @@
+"""The ``geodem`` command line: info, bench --json, example two-balls, user errors (exit 2)."""
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from geodem.cli import app
+
+runner = CliRunner()
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def flat(text: str) -> str:
+    """Rich boxes and line wrapping removed: words separated by single spaces."""
+    return re.sub(r"[\s│╭╮╰╯─┃━]+", " ", text)
+
+
+def invoke(*args, env=None):
+    return runner.invoke(app, list(args), env=env)
+
+
+def test_info_lists_numba():
+    res = invoke("info")
+    assert res.exit_code == 0, res.output
+    assert "numba" in res.stdout
+    assert "backends" in res.stdout
+
+
+def test_info_json():
+    res = invoke("info", "--json")
+    assert res.exit_code == 0, res.output
+    data = json.loads(res.stdout)
+    assert data["backends"]["numba"]["available"] is True
+    assert data["versions"]["geodem"]
+
+
+def test_bench_json():
+    res = invoke("bench", "--sizes", "2000", "--backends", "numba", "--steps", "20", "--json")
+    assert res.exit_code == 0, res.output
+    recs = json.loads(res.stdout)  # stdout holds only the JSON list
+    assert isinstance(recs, list) and len(recs) == 1
+    r = recs[0]
+    for key in ("backend", "dim", "n", "element_steps_per_s", "bytes_per_element",
+                "contacts_per_element", "steps", "wall_s", "threads"):
+        assert key in r
+    assert r["backend"] == "numba" and r["dim"] == 3 and r["steps"] == 20
+    assert r["n"] > 1000
+    assert r["element_steps_per_s"] > 0 and r["bytes_per_element"] > 0
+    assert 6 < r["contacts_per_element"] <= 12
+    assert r["bonds_broken"] == 0
+
+
+@pytest.mark.parametrize("value", ["abc", "10,x", "50", "1.5e3.2", ""])
+def test_bench_bad_sizes_exit_2(value):
+    res = invoke("bench", "--sizes", value, "--json")
+    assert res.exit_code == 2
+    msg = flat(res.stderr)
+    assert "--sizes" in msg and "integers >= 100" in msg
+    assert "Traceback" not in res.output
+    assert res.stdout == ""
+
+
+def test_bench_unknown_backend_exit_2():
+    res = invoke("bench", "--sizes", "2000", "--backends", "numba,fortran")
+    assert res.exit_code == 2
+    msg = flat(res.stderr)
+    assert "--backends" in msg and "fortran" in msg
+    assert "auto, numba, numpy, cupy" in msg
+    assert "Traceback" not in res.output
+
+
+def test_example_unknown_backend_exit_2(tmp_path):
+    res = invoke("example", "two-balls", "-o", str(tmp_path / "x"), "--backend", "gpu")
+    assert res.exit_code == 2
+    msg = flat(res.stderr)
+    assert "--backend" in msg and "auto, numba, numpy, cupy" in msg
+    assert not (tmp_path / "x").exists()
+
+
+def test_env_backend_unknown_exit_2(tmp_path):
+    res = invoke("example", "two-balls", "-o", str(tmp_path / "x"),
+                 env={"GEODEM_BACKEND": "fortran"})
+    assert res.exit_code == 2
+    msg = flat(res.stderr)
+    assert "GEODEM_BACKEND" in msg and "auto, numba, numpy, cupy" in msg
+    assert "Traceback" not in res.output
+
+
+def test_example_two_balls(tmp_path):
+    out = tmp_path / "two_balls"
+    # --backend beats $GEODEM_BACKEND (which would fail: no such backend)
+    res = invoke("example", "two-balls", "-o", str(out), "--backend", "numba",
+                 env={"GEODEM_BACKEND": "fortran"})
+    assert res.exit_code == 0, res.output
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "ok" and s["backend"] == "numba" and s["n_elements"] == 4
+    assert s["period_rel_error"] < 0.005
+    assert s["decay_rel_error"] < 0.005
+    assert s["energy_closure_rel_error"] < 0.005
+    assert s["critical_overshoot"] < 1e-6
+    assert s["peaks"] >= 8 and s["bonds_broken"] == 0
+    lines = (out / "history.csv").read_text().splitlines()
+    assert lines[0].startswith("time,u_critical,u_10pct,")
+    assert len(lines) == s["steps"] + 2  # header + initial state + one row per step
+    assert "period" in res.stdout
+
+    # a second run into the same (now non-empty) folder is refused ...
+    again = invoke("example", "two-balls", "-o", str(out))
+    assert again.exit_code == 2
+    assert "not empty" in flat(again.stderr) and "--overwrite" in flat(again.stderr)
+    assert "Traceback" not in again.output
+    # ... and -v shows the traceback of the same user error
+    verbose = invoke("-v", "example", "two-balls", "-o", str(out))
+    assert verbose.exit_code == 2 and "Traceback" in verbose.stderr
+
+
+def test_python_dash_m():
+    res = subprocess.run([sys.executable, "-m", "geodem", "--version"], capture_output=True,
+                         text=True, timeout=60, cwd=ROOT)
+    assert res.returncode == 0 and "geodem" in res.stdout
+    res = subprocess.run([sys.executable, "-m", "geodem", "bench", "--sizes", "abc"],
+                         capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert res.returncode == 2 and "--sizes" in res.stderr and "Traceback" not in res.stderr
