@@ -33,10 +33,11 @@ def _prepare_out_dir(out_dir, overwrite: bool) -> Path:
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ExampleError(f"output path {str(out)!r} exists and is not a folder; "
-                           "choose another -o/--out")
+                           "choose another output folder")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
         raise ExampleError(f"output folder {str(out)!r} exists and is not empty; choose another "
-                           "-o/--out or pass --overwrite (overwrite=True) to replace its files")
+                           "output folder, or allow writing into it (--overwrite on the "
+                           "command line, overwrite=True in Python)")
     out.mkdir(parents=True, exist_ok=True)
     return out
 
@@ -85,9 +86,10 @@ def two_balls(out_dir, backend=None, dim=2, overwrite=False, periods=PERIODS,
               dt_fraction=DT_FRACTION, plot=True) -> dict:
     """Run TwoBalls critically damped and at 10 % of critical; write results to ``out_dir``.
 
-    Each run covers ``periods`` undamped periods ``T0`` at ``dt = dt_fraction * T0``, recording the
-    displacement of ball 1 and the energy terms every step. Writes ``summary.json`` (the key numbers,
-    returned as a dict too), ``history.csv`` and, if matplotlib is importable, ``two_balls.png``.
+    Each run covers ``periods`` undamped periods ``T0`` at ``dt = dt_fraction * T0``, recording
+    the displacement of ball 1 and the energy terms every step. Writes ``summary.json`` (the key
+    numbers, returned as a dict too), ``history.csv`` and, if matplotlib is importable,
+    ``two_balls.png``.
 
     Raises :class:`ExampleError` if ``out_dir`` exists and is not empty (unless ``overwrite``).
     Backend: ``backend`` > ``$GEODEM_BACKEND`` > ``auto``.

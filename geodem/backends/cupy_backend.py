@@ -19,7 +19,7 @@ from geodem.backends.kernels import make_kernels
 from geodem.core.state import BROKEN_BASE
 
 THREADS = 128
-DEVICE_ARRAYS = ("x", "v", "a", "dx", "free", "fload", "r", "m", "kn", "ks", "xb", "fs0", "mu",
+DEVICE_ARRAYS = ("x", "v", "a", "dx", "x_ref", "free", "fload", "r", "m", "kn", "ks", "xb", "fs0", "mu",
                  "eta", "nbr", "cstate", "fs", "brate", "q_visc", "q_break_n", "q_break_s",
                  "q_fric", "w_ext")
 
@@ -106,6 +106,16 @@ class CupyBackend:
             arr = self.dev[k]
             host = arr if self.xp is np else arr.get()
             getattr(self.s, k)[...] = host
+
+    def all_finite(self):
+        xp, d = self.xp, self.dev
+        return bool(xp.isfinite(d["x"]).all() and xp.isfinite(d["v"]).all())
+
+    def max_disp_speed(self):
+        xp, d = self.xp, self.dev
+        disp = xp.sqrt(((d["x"] - d["x_ref"]) ** 2).sum(axis=1)).max()
+        speed = xp.sqrt((d["v"] ** 2).sum(axis=1)).max()
+        return float(disp), float(speed)
 
     def has_new_cracks(self):
         return bool((self.dev["cstate"] >= BROKEN_BASE).any())

@@ -175,12 +175,12 @@ def make_kernels(dim: int, target: str):
         import numba
         from numba import prange
 
-        dev = functools.partial(numba.njit, fastmath=True, cache=False)
+        dev = functools.partial(numba.njit, fastmath=True, error_model="numpy", cache=False)
         move_b, force_b, energy_b = _bodies(dim, lambda f: dev(f))
         move_b = dev(move_b)
         force_b = dev(force_b)
         energy_b = dev(energy_b)
-        par = numba.njit(parallel=True, fastmath=True, cache=False)
+        par = numba.njit(parallel=True, fastmath=True, error_model="numpy", cache=False)
 
         @par
         def move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt):

@@ -22,6 +22,15 @@ class HostBackend:
         if self.e_el.shape[0] != self.s.n:
             self.e_el = np.zeros(self.s.n)
 
+    def all_finite(self):
+        return bool(np.isfinite(self.s.x).all() and np.isfinite(self.s.v).all())
+
+    def max_disp_speed(self):
+        from geodem.core.neighbors import _max_disp_speed
+
+        d2, v2 = _max_disp_speed(self.s.x, self.s.x_ref, self.s.v)
+        return float(np.sqrt(d2)), float(np.sqrt(v2))
+
     def has_new_cracks(self):
         return bool((self.s.cstate >= BROKEN_BASE).any())
 

@@ -78,10 +78,13 @@ class Simulation:
     backend: ``auto | numba | numpy | cupy`` (default: ``$GEODEM_BACKEND`` or ``auto``).
     dt: time step [s]; default ``dt_fraction`` x the smallest element period.
     check_every: steps between neighbour/crack/finiteness checks.
+    overlap_limit: largest allowed overlap as a fraction of the smaller radius.
+    monitor_every: steps between energy-growth and overlap checks (0 = never); must be a
+        multiple of ``check_every``.
     """
 
     def __init__(self, state, backend=None, dt=None, dt_fraction=timestep.DEFAULT_FRACTION,
-                 check_every=10, overlap_limit=0.5):
+                 check_every=10, overlap_limit=0.5, monitor_every=1000):
         validate_state(state)
         self.state = state
         if dt is None:
@@ -90,6 +93,7 @@ class Simulation:
         state.dt = float(dt)
         self.check_every = int(check_every)
         self.overlap_limit = overlap_limit
+        self.monitor_every = int(monitor_every)
         self.rebuilds = 0
         self.cracks = {"i": [], "j": [], "time": [], "type": []}
         self.backend = select(backend)
@@ -125,20 +129,24 @@ class Simulation:
 
     def _checks(self):
         s, b = self.state, self.backend
-        if s.skin > 0.0:
+        if not b.all_finite():
             b.pull(("x", "v"))
-            from geodem.core import neighbors
+            self._raise_nonfinite()
+        if s.skin > 0.0:
+            disp, speed = b.max_disp_speed()
+            if disp + self.check_every * s.dt * speed > 0.5 * s.skin:
+                from geodem.core import neighbors
 
-            if not np.isfinite(s.x).all():
-                self._raise_nonfinite()
-            if neighbors.needs_rebuild(s, steps_ahead=self.check_every):
-                b.pull(("nbr", "cstate", "fs", "brate"))
+                b.pull(("x", "v", "x_ref", "nbr", "cstate", "fs", "brate"))
                 self._harvest_host()
                 neighbors.build_rows(s)
                 self.rebuilds += 1
                 b.push()
                 return
         self._harvest()
+        if self.monitor_every and s.step % self.monitor_every == 0:
+            self.check_energy()
+            self.check_overlaps()
 
     def _raise_nonfinite(self):
         s = self.state
@@ -242,27 +250,29 @@ class Simulation:
         if not math.isfinite(e["total"]):
             self._raise_nonfinite()
         if e["closure_error"] > limit:
+            s = self.state
+            ke = (s.m[:, None] * s.v * s.v * (s.free != 0.0)).sum(axis=1)
+            fast = [i for i in np.argsort(-ke)[:5].tolist() if ke[i] > 0.01 * ke.max()]
             raise InstabilityError(
-                f"energy grew without a source at step {self.state.step}: closure error "
-                f"{e['closure_error']:.3g} > {limit}; the time step {self.state.dt:.4g} s is "
-                f"probably too large (stability bound {timestep.stable_dt_bound(self.state):.4g} s)")
+                f"energy grew without a source at step {s.step}: closure error "
+                f"{e['closure_error']:.3g} > {limit} (fastest elements {fast}); the time step "
+                f"{s.dt:.4g} s is probably too large (stability bound "
+                f"{timestep.stable_dt_bound(s):.4g} s): reduce dt or check those elements' "
+                f"stiffness and mass")
         return e
 
     def check_overlaps(self):
         """Raise InstabilityError when a contact overlaps more than ``overlap_limit`` x min radius."""
-        s = self.sync()
-        valid = s.nbr >= 0
-        j = np.where(valid, s.nbr, 0)
-        dist = np.linalg.norm(s.x[j] - s.x[:, None, :], axis=-1)
-        ov = (s.r[:, None] + s.r[j] - dist) / np.minimum(s.r[:, None], s.r[j])
-        ov = np.where(valid, ov, -np.inf)
-        worst = float(ov.max()) if ov.size else -np.inf
+        from geodem.core.checks import max_overlap
+
+        s = self.state
+        self.backend.pull(("x", "nbr"))
+        worst, i, j = max_overlap(s.x, s.r, s.nbr)
         if worst > self.overlap_limit:
-            i, k = np.unravel_index(np.argmax(ov), ov.shape)
             raise InstabilityError(
-                f"elements {i} and {s.nbr[i, k]} overlap by {worst:.2f} x the smaller radius "
-                f"(limit {self.overlap_limit}) at step {s.step}: reduce the loading rate or dt, "
-                f"or raise kn")
+                f"elements {i} and {j} overlap by {worst:.2f} x the smaller radius "
+                f"(limit {self.overlap_limit}) at step {s.step}: reduce the loading rate or dt "
+                f"(now {s.dt:.4g} s), or raise kn of these elements")
         return worst
 
     # ------------------------------------------------------------------ checkpoints
@@ -274,7 +284,8 @@ class Simulation:
         self._harvest()
         save_state(self.state, path, extra={"cracks": self.cracks, "eg0": self._eg0,
                                             "emech0": self._emech0,
-                                            "check_every": self.check_every})
+                                            "check_every": self.check_every,
+                                            "monitor_every": self.monitor_every})
 
     @classmethod
     def load(cls, path, backend=None) -> "Simulation":
@@ -286,6 +297,7 @@ class Simulation:
         sim.state = state
         sim.check_every = int(extra["check_every"])
         sim.overlap_limit = 0.5
+        sim.monitor_every = int(extra.get("monitor_every", 1000))
         sim.rebuilds = 0
         sim.cracks = extra["cracks"]
         sim._eg0, sim._emech0 = extra["eg0"], extra["emech0"]

@@ -50,6 +50,7 @@ __all__ = [
 
 _BLOCK = 256  # elements per parallel chunk (thread-local scratch is allocated per chunk)
 _CELL_SAFETY = 1.0 + 1e-9  # cell size margin against rounding in floor((x - lo) / h)
+_INT_OF_SIZE = {1: np.int8, 2: np.int16, 4: np.int32, 8: np.int64}
 _ONE_F32_BITS = int(np.array(1.0, np.float32).view(np.int32))  # brate default, as bits
 
 
@@ -679,8 +680,9 @@ def spatial_sort(state: State) -> np.ndarray:
         a = getattr(state, name)
         if not a.flags.c_contiguous:
             raise ValueError(f"state.{name} must be C-contiguous")
-        a2 = a.reshape(n, -1)
-        tmp = scratch[:a.nbytes].view(a.dtype).reshape(a2.shape)
+        # integer views: moves are bitwise whatever the payload (NaNs included)
+        a2 = a.reshape(n, -1).view(_INT_OF_SIZE[a.dtype.itemsize])
+        tmp = scratch[:a.nbytes].view(a2.dtype).reshape(a2.shape)
         _take_rows(a2, perm, tmp)
         _copy_rows(tmp, a2)
     return perm

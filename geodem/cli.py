@@ -1,0 +1,429 @@
+"""The ``geodem`` command line (typer + rich).
+
+::
+
+    geodem [-v] info [--json]
+    geodem [-v] bench [--sizes 10000,100000,1000000] [--backends numba,numpy] [--steps N] [--json]
+    geodem [-v] example two-balls -o DIR [--backend B] [--overwrite]
+
+Backend choice for a run: ``--backend`` > environment variable ``GEODEM_BACKEND`` > ``auto``
+(``cupy`` on a usable GPU, else ``numba``). User errors (bad option values, unknown or unusable
+backend, non-empty output folder) print a message on stderr and exit with status 2; other failures
+exit with status 1. ``-v/--verbose`` (before the command) shows the traceback.
+"""
+from __future__ import annotations
+
+import functools
+import json
+import os
+import platform
+import sys
+import traceback
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from geodem import __version__
+
+app = typer.Typer(
+    name="geodem",
+    help="geodem: discrete-element (DEM) simulation of bonded rock, MatDEM style.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+example_app = typer.Typer(help="Run a ready-made example and write its results to a folder.",
+                          no_args_is_help=True)
+app.add_typer(example_app, name="example")
+
+_OPTS = {"verbose": False}
+USER_ERROR = 2
+FAILURE = 1
+ENV_BACKEND = "GEODEM_BACKEND"
+
+
+def _out() -> Console:
+    return Console()
+
+
+def _err() -> Console:
+    return Console(stderr=True)
+
+
+# ----------------------------------------------------------------------------- errors
+def _user_error_types():
+    from geodem.backends import BackendError
+    from geodem.bench import BenchError
+    from geodem.examples import ExampleError
+
+    return (BackendError, BenchError, ExampleError)
+
+
+def _fail(msg: str, code: int) -> None:
+    err = _err()
+    err.print(f"[bold red]Error:[/] {msg}", highlight=False, markup=True, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def _guard(fn):
+    """Turn exceptions of a command into a message on stderr and an exit status.
+
+    User errors exit with 2, anything else with 1; ``-v`` prints the traceback first.
+    """
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except (typer.Exit, typer.Abort, KeyboardInterrupt):
+            raise
+        except Exception as exc:  # noqa: BLE001 - the one place errors become exit codes
+            user = isinstance(exc, _user_error_types())
+            if _OPTS["verbose"]:
+                traceback.print_exc(file=sys.stderr)
+            msg = escape(str(exc))
+            if not user:
+                msg = f"{type(exc).__name__}: {msg}"
+                if not _OPTS["verbose"]:
+                    msg += " (run 'geodem -v ...' for the traceback)"
+            _fail(msg, USER_ERROR if user else FAILURE)
+
+    return wrapper
+
+
+# ----------------------------------------------------------------------------- option parsing
+def _allowed_backends():
+    from geodem.backends import ALLOWED
+
+    return ALLOWED
+
+
+def _parse_backend(value: Optional[str]) -> Optional[str]:
+    if value is None:
+        return None
+    name = value.strip().lower()
+    allowed = _allowed_backends()
+    if name not in allowed:
+        raise typer.BadParameter(f"{value!r} is not a known backend; allowed: "
+                                 f"{', '.join(allowed)}")
+    return name
+
+
+def _parse_backends(value: Optional[str]) -> Optional[list]:
+    if value is None:
+        return None
+    names = [v.strip().lower() for v in value.split(",") if v.strip()]
+    if not names:
+        raise typer.BadParameter(f"{value!r} names no backend; give a comma-separated list of: "
+                                 f"{', '.join(_allowed_backends())}")
+    allowed = _allowed_backends()
+    for name in names:
+        if name not in allowed:
+            raise typer.BadParameter(f"{name!r} is not a known backend; allowed: "
+                                     f"{', '.join(allowed)} (comma-separated)")
+    return names
+
+
+def _parse_sizes(value: Optional[str]) -> Optional[list]:
+    from geodem.bench import MIN_SIZE
+
+    if value is None:
+        return None
+    out = []
+    parts = [p.strip().replace("_", "") for p in value.split(",")]
+    for p in parts:
+        try:
+            f = float(p)
+        except ValueError:
+            f = None
+        if f is None or f != f or f in (float("inf"), float("-inf")) or f != int(f) \
+                or f < MIN_SIZE:
+            raise typer.BadParameter(
+                f"{p!r} is not a model size; allowed: comma-separated integers >= {MIN_SIZE}, "
+                f"e.g. 10000,100000 or 1e4,1e5")
+        out.append(int(f))
+    return out
+
+
+def _resolve_backend(option: Optional[str]) -> str:
+    """``--backend`` > ``$GEODEM_BACKEND`` > ``auto``; BackendError names where it came from."""
+    from geodem.backends import BackendError, resolve_name
+
+    if option is not None:
+        return resolve_name(option)
+    env = os.environ.get(ENV_BACKEND)
+    if env:
+        try:
+            return resolve_name(env)
+        except BackendError as exc:
+            raise BackendError(f"environment variable {ENV_BACKEND}={env!r}: {exc}") from None
+    return resolve_name("auto")
+
+
+# ----------------------------------------------------------------------------- main callback
+def _version_callback(value: bool):
+    if value:
+        typer.echo(f"geodem {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    verbose: Annotated[bool, typer.Option("-v", "--verbose",
+                                          help="Show full tracebacks on errors.")] = False,
+    version: Annotated[Optional[bool], typer.Option(
+        "--version", callback=_version_callback, is_eager=True,
+        help="Print the version and exit.")] = None,
+):
+    """geodem: discrete-element (DEM) simulation of bonded rock, MatDEM style.
+
+    Backends: auto (cupy on a usable GPU, else numba), numba, numpy, cupy. Choose one with
+    --backend or the environment variable GEODEM_BACKEND (the option wins).
+    """
+    _OPTS["verbose"] = verbose
+
+
+# ----------------------------------------------------------------------------- info
+def _version_of(module: str) -> str:
+    import importlib
+
+    try:
+        mod = importlib.import_module(module)
+    except Exception as exc:  # noqa: BLE001
+        return f"not installed ({type(exc).__name__})"
+    ver = getattr(mod, "__version__", None)
+    if ver is None:
+        try:
+            from importlib.metadata import version
+
+            ver = version(module)
+        except Exception:  # noqa: BLE001
+            ver = "unknown"
+    return str(ver)
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _gpu_info() -> list:
+    """One dict per CUDA device (cupy), or [] when cupy is not usable."""
+    try:
+        import cupy
+
+        out = []
+        for k in range(cupy.cuda.runtime.getDeviceCount()):
+            p = cupy.cuda.runtime.getDeviceProperties(k)
+            name = p["name"].decode() if isinstance(p["name"], bytes) else str(p["name"])
+            out.append({"index": k, "name": name,
+                        "memory_gib": round(p["totalGlobalMem"] / 2**30, 1),
+                        "compute_capability": f"{p['major']}.{p['minor']}"})
+        return out
+    except Exception:  # noqa: BLE001 - no GPU, no driver, no cupy
+        return []
+
+
+def collect_info() -> dict:
+    """Everything ``geodem info`` prints, as a dict."""
+    import numba
+
+    from geodem.backends import ALLOWED, BACKENDS, _load_all
+    from geodem.bench import available_memory
+
+    _load_all()
+    backends = {}
+    for name, cls in BACKENDS.items():
+        ok = bool(cls.is_available())
+        backends[name] = {"available": ok, "why_not": "" if ok else cls.why_not()}
+    try:
+        auto = _resolve_backend(None)
+        default_err = ""
+    except Exception as exc:  # noqa: BLE001
+        auto, default_err = None, str(exc)
+    try:
+        affinity = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        affinity = None
+    mem = available_memory()
+    info = {
+        "versions": {
+            "geodem": __version__,
+            "python": platform.python_version(),
+            "numpy": _version_of("numpy"),
+            "numba": _version_of("numba"),
+            "scipy": _version_of("scipy"),
+            "h5py": _version_of("h5py"),
+            "typer": _version_of("typer"),
+            "rich": _version_of("rich"),
+        },
+        "platform": platform.platform(),
+        "cpu": _cpu_model(),
+        "cpu_count": os.cpu_count(),
+        "cpus_usable": affinity,
+        "memory_available_gib": None if mem is None else round(mem / 2**30, 1),
+        "numba_threads": int(numba.get_num_threads()),
+        "numba_threading_layer": str(numba.config.THREADING_LAYER),
+        "backends": backends,
+        "allowed_backends": list(ALLOWED),
+        "env_backend": os.environ.get(ENV_BACKEND),
+        "default_backend": auto,
+        "default_backend_error": default_err,
+        "gpus": _gpu_info() if backends.get("cupy", {}).get("available") else [],
+    }
+    return info
+
+
+@app.command()
+@_guard
+def info(
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
+):
+    """Versions, CPU and threads, and which backends work on this machine (and why not)."""
+    data = collect_info()
+    if as_json:
+        sys.stdout.write(json.dumps(data, indent=2) + "\n")
+        return
+    con = _out()
+    t = Table(title="geodem", show_header=False, title_justify="left")
+    t.add_column("item", style="bold")
+    t.add_column("value")
+    for k, v in data["versions"].items():
+        t.add_row(k, v)
+    t.add_row("platform", data["platform"])
+    t.add_row("cpu", data["cpu"])
+    t.add_row("cpu count", f"{data['cpu_count']} (usable: {data['cpus_usable']})")
+    if data["memory_available_gib"] is not None:
+        t.add_row("memory available", f"{data['memory_available_gib']} GiB")
+    t.add_row("numba threads", f"{data['numba_threads']} (NUMBA_NUM_THREADS; threading layer "
+                               f"{data['numba_threading_layer']})")
+    con.print(t)
+
+    b = Table(title="backends", title_justify="left")
+    b.add_column("backend", style="bold")
+    b.add_column("usable")
+    b.add_column("note")
+    for name, row in data["backends"].items():
+        b.add_row(name, "[green]yes[/]" if row["available"] else "[red]no[/]",
+                  escape(row["why_not"]))
+    con.print(b)
+    env = data["env_backend"]
+    src = f"{ENV_BACKEND}={env}" if env else "auto"
+    if data["default_backend"]:
+        con.print(f"default backend: [bold]{data['default_backend']}[/] (from {src}; "
+                  f"override with --backend or {ENV_BACKEND})", highlight=False)
+    else:
+        con.print(f"default backend: [red]none[/] ({data['default_backend_error']})",
+                  highlight=False)
+    for g in data["gpus"]:
+        con.print(f"GPU {g['index']}: {g['name']}, {g['memory_gib']} GiB, compute capability "
+                  f"{g['compute_capability']}", highlight=False)
+
+
+# ----------------------------------------------------------------------------- bench
+@app.command()
+@_guard
+def bench(
+    sizes: Annotated[Optional[str], typer.Option(
+        "--sizes", callback=_parse_sizes, metavar="N[,N...]",
+        help="Comma-separated model sizes (elements), integers >= 100. "
+             "[default: 10000,100000,1000000]")] = None,
+    backends: Annotated[Optional[str], typer.Option(
+        "--backends", callback=_parse_backends, metavar="NAME[,NAME...]",
+        help="Comma-separated backends (auto, numba, numpy, cupy). [default: every usable one; "
+             "numpy only up to --numpy-max elements]")] = None,
+    steps: Annotated[Optional[int], typer.Option(
+        "--steps", min=1, help="Timed steps per run. [default: about 3 s worth]")] = None,
+    dim: Annotated[int, typer.Option("--dim", min=2, max=3, help="Dimension (2 or 3).")] = 3,
+    numpy_max: Annotated[int, typer.Option(
+        "--numpy-max", min=1, help="Largest size the slow NumPy reference is run at.")] = 100_000,
+    as_json: Annotated[bool, typer.Option(
+        "--json", help="Print only a JSON list of records on stdout (progress goes to stderr).")]
+        = False,
+):
+    """Time full steps of bonded specimens: element-steps/s and bytes per element per backend."""
+    from geodem.bench import DEFAULT_SIZES, run_bench
+
+    err = _err()
+
+    def progress(msg):
+        err.print(msg, highlight=False, markup=False)
+
+    records = run_bench(sizes=sizes or DEFAULT_SIZES, backends=backends, steps=steps, dim=dim,
+                        progress=progress, numpy_max=numpy_max)
+    if as_json:
+        sys.stdout.write(json.dumps(records, indent=2) + "\n")
+        return
+    con = _out()
+    t = Table(title=f"geodem bench ({dim}-D bonded specimen; {_cpu_model()}, "
+                    f"{os.cpu_count()} cpus)", title_justify="left")
+    for col in ("backend", "n", "element-steps/s", "bytes/element", "contacts/element", "steps",
+                "wall s", "threads", "rebuilds"):
+        t.add_column(col, justify="left" if col == "backend" else "right")
+    for r in records:
+        t.add_row(r["backend"], f"{r['n']:,}", f"{r['element_steps_per_s']:.3g}",
+                  f"{r['bytes_per_element']:.0f}", f"{r['contacts_per_element']:.1f}",
+                  str(r["steps"]), f"{r['wall_s']:.2f}",
+                  "-" if r["threads"] is None else str(r["threads"]),
+                  "-" if r["rebuilds"] is None else str(r["rebuilds"]))
+    con.print(t)
+    if not records:
+        con.print("no run was made (see the messages above)")
+
+
+# ----------------------------------------------------------------------------- examples
+@example_app.command("two-balls")
+@_guard
+def example_two_balls(
+    out: Annotated[str, typer.Option("-o", "--out", help="Output folder (created).")],
+    backend: Annotated[Optional[str], typer.Option(
+        "--backend", callback=_parse_backend,
+        help="auto, numba, numpy or cupy. [default: $GEODEM_BACKEND, else auto]")] = None,
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="Write into an existing non-empty output folder.")] = False,
+    dim: Annotated[int, typer.Option("--dim", min=2, max=3, help="Dimension (2 or 3).")] = 2,
+):
+    """TwoBalls: two bonded balls between walls, critically and 10 %-damped, vs the analytic
+    oscillator. Writes summary.json, history.csv and (with matplotlib) two_balls.png."""
+    from geodem.examples import two_balls
+
+    name = _resolve_backend(backend)
+    s = two_balls(out, backend=name, dim=dim, overwrite=overwrite)
+    con = _out()
+    t = Table(title=f"TwoBalls ({s['dim']}-D, backend {s['backend']}, {s['steps']} steps per run "
+                    f"at dt = {s['dt_over_T0']:.0%} of the period)", title_justify="left")
+    for col in ("quantity", "geodem", "analytic", "relative error"):
+        t.add_column(col, justify="left" if col == "quantity" else "right")
+    rows = (
+        ("period, 10 % damping [s]", f"{s['period']:.6g}", f"{s['period_analytic']:.6g}",
+         f"{s['period_rel_error']:.2e}"),
+        ("decay rate, 10 % damping [1/s]", f"{s['decay_rate']:.6g}",
+         f"{s['decay_rate_analytic']:.6g}", f"{s['decay_rel_error']:.2e}"),
+        ("overshoot, critical damping [-]", f"{s['critical_overshoot']:.2e}", "0", ""),
+        ("energy closure error, max [-]", f"{s['energy_closure_rel_error']:.2e}", "0", ""),
+    )
+    for row in rows:
+        t.add_row(*(escape(c) for c in row))
+    con.print(t)
+    con.print(f"wall time {s['wall_time_s']:.2f} s; wrote {', '.join(s['files'])} to "
+              f"{s['out_dir']}", highlight=False)
+    if "two_balls.png" not in s["files"]:
+        con.print(f"plot {s.get('plot', 'skipped')}", highlight=False)
+
+
+def run():  # pragma: no cover - entry point for python -m geodem
+    app(prog_name="geodem")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    run()

@@ -1,0 +1,75 @@
+"""Macro (rock) properties <-> micro (bond) parameters on the close-packed lattice.
+
+PHYSICS.md section 2 (Liu et al. 2017, MatDEM). For element diameter ``d`` [m]::
+
+    Kn   = sqrt(2) E d / (4 (1 - 2 nu))
+    Ks   = sqrt(2) (1 - 5 nu) E d / (4 (1 + nu)(1 - 2 nu))
+    Xb   = (3 Kn + Ks) Tu d^2 / (6 sqrt(2) Kn (Kn + Ks))
+    mu_p = (3 mu_i - sqrt(1 + mu_i^2)) / (2 sqrt(2) sqrt(1 + mu_i^2))
+    Fs0  = (1 - sqrt(2) mu_p) Cu d^2 / 6
+    m    = rho d^3 / sqrt(2)
+
+Bond values ``Kn, Ks, Xb, Fs0, mu_p``; each element stores ``kn = 2 Kn, ks = 2 Ks, xb = Xb/2,
+fs0 = Fs0, mu = mu_p`` (two half-springs in series make the bond).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+SQ2 = math.sqrt(2.0)
+MU_I_MIN = 1.0 / math.sqrt(8.0)  # mu_p = 0 at sin(phi) = 1/3, i.e. mu_i = tan(phi) = 0.354
+
+
+@dataclass(frozen=True)
+class Micro:
+    Kn: float
+    Ks: float
+    Xb: float
+    Fs0: float
+    mu_p: float
+    mass: float
+    d: float
+
+    @property
+    def element(self) -> dict:
+        """Per-element parameters for :func:`geodem.core.state.new_state`."""
+        return {"kn": 2 * self.Kn, "ks": 2 * self.Ks, "xb": self.Xb / 2, "fs0": self.Fs0,
+                "mu": self.mu_p}
+
+
+def _positive(name, v, unit):
+    if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} = {v!r}: must be a finite number > 0 [{unit}]")
+
+
+def macro_to_micro(E, nu, Tu, Cu, mu_i, rho, d) -> Micro:
+    """Bond parameters from Young's modulus E [Pa], Poisson's ratio nu, tensile strength Tu [Pa],
+    UCS Cu [Pa], internal friction mu_i = tan(phi), density rho [kg/m^3], diameter d [m]."""
+    for name, v, unit in (("E", E, "Pa"), ("Tu", Tu, "Pa"), ("Cu", Cu, "Pa"),
+                          ("rho", rho, "kg/m^3"), ("d", d, "m")):
+        _positive(name, v, unit)
+    if not (math.isfinite(nu) and -1.0 < nu <= 0.2):
+        raise ValueError(f"nu = {nu!r}: the close-packed lattice reaches only -1 < nu <= 0.2 "
+                         "(above 0.2 the shear stiffness Ks would be negative)")
+    if not (math.isfinite(mu_i) and mu_i >= MU_I_MIN):
+        raise ValueError(f"mu_i = {mu_i!r}: the lattice needs mu_i = tan(phi) >= {MU_I_MIN:.4f} "
+                         "(phi >= 19.47 deg); below it the bond friction mu_p would be negative")
+    kn = SQ2 * E * d / (4 * (1 - 2 * nu))
+    ks = SQ2 * (1 - 5 * nu) * E * d / (4 * (1 + nu) * (1 - 2 * nu))
+    xb = (3 * kn + ks) * Tu * d * d / (6 * SQ2 * kn * (kn + ks))
+    s = math.sqrt(1 + mu_i * mu_i)
+    mu_p = (3 * mu_i - s) / (2 * SQ2 * s)
+    fs0 = (1 - SQ2 * mu_p) * Cu * d * d / 6
+    return Micro(kn, ks, xb, fs0, mu_p, rho * d ** 3 / SQ2, d)
+
+
+def micro_to_macro(Kn, Ks, Xb, Fs0, mu_p, d) -> dict:
+    """Inverse of :func:`macro_to_micro`: returns ``E, nu, Tu, Cu, mu_i``."""
+    E = 6 * SQ2 * Kn * (Kn + Ks) / (d * (5 * Kn + Ks))
+    nu = (Kn - Ks) / (5 * Kn + Ks)
+    Tu = 3 * E * Xb / (d * (2 - nu))
+    sphi = (1 + 2 * SQ2 * mu_p) / 3
+    mu_i = sphi / math.sqrt(1 - sphi * sphi)
+    Cu = 6 * Fs0 / (d * d * (1 - SQ2 * mu_p))
+    return {"E": E, "nu": nu, "Tu": Tu, "Cu": Cu, "mu_i": mu_i}

@@ -1,0 +1,96 @@
+"""Bad input is refused before any stepping; instabilities stop the run with a clear message."""
+import math
+
+import numpy as np
+import pytest
+
+from geodem.cases import two_balls as tb
+from geodem.core.engine import InstabilityError, Simulation
+from geodem.core.neighbors import rows_from_pairs
+from geodem.core.state import new_state
+from geodem.core.timestep import stable_dt_bound
+from geodem.materials import macro_to_micro, micro_to_macro
+
+
+@pytest.mark.parametrize("name,value,match", [
+    ("kn", 0.0, r"kn of element 1 .* allowed range: finite and > 0"),
+    ("kn", -1e9, r"kn of element 1 .* > 0"),
+    ("ks", -1.0, r"ks of element 1 .* >= 0"),
+    ("m", 0.0, r"m of element 1 .* > 0"),
+    ("mu", np.nan, r"mu of element 1"),
+])
+def test_nonphysical_parameters(name, value, match):
+    st = tb.build()
+    getattr(st, name)[1] = value
+    with pytest.raises(ValueError, match=match):
+        Simulation(st, backend="numba")
+
+
+def test_nan_position():
+    st = tb.build()
+    st.x[2, 0] = np.nan
+    with pytest.raises(ValueError, match=r"x of element 2 is not finite"):
+        Simulation(st, backend="numba")
+
+
+def test_dt_above_stability_limit():
+    st = tb.build()
+    lim = stable_dt_bound(st)
+    with pytest.raises(ValueError, match=r"above the stability limit .* allowed: 0 < dt <"):
+        Simulation(st, backend="numba", dt=1.01 * lim)
+    with pytest.raises(ValueError, match="positive"):
+        Simulation(tb.build(), backend="numba", dt=-1.0)
+
+
+def test_overlapping_fixed_elements():
+    x = np.array([[0.0, 0.0], [0.4, 0.0], [2.0, 0.0]])
+    st = new_state(x, 0.5, 1.0, kn=1e6, ks=1e6, width=4)
+    st.free[:2] = 0.0
+    with pytest.raises(ValueError, match=r"fixed elements 0 and 1 overlap"):
+        Simulation(st, backend="numba")
+
+
+def test_nu_and_friction_out_of_range():
+    with pytest.raises(ValueError, match=r"nu = 0.3: .* -1 < nu <= 0.2"):
+        macro_to_micro(E=3e10, nu=0.3, Tu=5e6, Cu=5e7, mu_i=1.0, rho=2650, d=0.01)
+    with pytest.raises(ValueError, match=r"mu_i = 0.2: .* >= 0.3536"):
+        macro_to_micro(E=3e10, nu=0.15, Tu=5e6, Cu=5e7, mu_i=0.2, rho=2650, d=0.01)
+    with pytest.raises(ValueError, match=r"E = -1"):
+        macro_to_micro(E=-1, nu=0.15, Tu=5e6, Cu=5e7, mu_i=1.0, rho=2650, d=0.01)
+
+
+def test_macro_micro_round_trip():
+    mic = macro_to_micro(E=3e10, nu=0.15, Tu=5e6, Cu=5e7, mu_i=1.0, rho=2650, d=0.01)
+    mac = micro_to_macro(mic.Kn, mic.Ks, mic.Xb, mic.Fs0, mic.mu_p, 0.01)
+    for k, v in dict(E=3e10, nu=0.15, Tu=5e6, Cu=5e7, mu_i=1.0).items():
+        assert mac[k] == pytest.approx(v, rel=1e-12)
+    assert mic.Xb == pytest.approx(5e6 * 0.01 * (2 - 0.15) / (3 * 3e10), rel=1e-12)
+    assert mic.element["kn"] == 2 * mic.Kn and mic.mass == pytest.approx(2650 * 1e-6 / math.sqrt(2))
+
+
+def test_instability_nan_stops_run():
+    st = tb.build()
+    sim = Simulation(st, backend="numba", monitor_every=0)
+    sim.run(7)
+    st.fload[2, 0] = np.inf  # a broken load reaches the loop: positions turn non-finite
+    with pytest.raises(InstabilityError, match=r"unstable at step 10: .* elements \[1, 2\].*reduce dt"):
+        sim.run(100)
+
+
+def test_energy_growth_detected():
+    st = tb.build(amplitude=0.001)
+    sim = Simulation(st, backend="numba", monitor_every=10)
+    sim.state.dt = 1.05 * 2.0 / math.sqrt(3 * 0.5 * st.kn[1] / st.m[1])  # just past 2/omega_max
+    with pytest.raises(InstabilityError, match=r"energy grew .*fastest elements \[[12], [12]\]"):
+        sim.run(20000)
+
+
+def test_deep_overlap_detected():
+    x = np.array([[0.0, 0.0], [1.0, 0.0]])
+    st = new_state(x, 0.5, 1.0, kn=1e3, ks=1e3, mu=0.0, width=4)
+    rows_from_pairs(st, np.array([0]), np.array([1]), bonded=False)
+    st.free[0] = 0.0
+    st.v[1, 0] = -20.0  # soft contact hit hard
+    sim = Simulation(st, backend="numba", monitor_every=10)
+    with pytest.raises(InstabilityError, match=r"elements 0 and 1 overlap .* reduce the loading"):
+        sim.run(2000)
