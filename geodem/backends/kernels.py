@@ -175,7 +175,8 @@ def make_kernels(dim: int, target: str):
         import numba
         from numba import prange
 
-        dev = functools.partial(numba.njit, fastmath=True, error_model="numpy", cache=False)
+        dev = functools.partial(numba.njit, fastmath=True, error_model="numpy", forceinline=True,
+                                cache=False)
         move_b, force_b, energy_b = _bodies(dim, lambda f: dev(f))
         move_b = dev(move_b)
         force_b = dev(force_b)
