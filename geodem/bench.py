@@ -10,6 +10,8 @@ taken on (``geodem info`` describes it).
 The specimen is generated with overlapping elements, so it relaxes (expands) while it is stepped and
 the neighbour rows are rebuilt now and then; the count is reported as ``rebuilds``. Its bonds are
 made unbreakable (``xb`` = one diameter, ``fs0`` = 1000 kn d) so every contact stays bonded.
+Besides the engine loop, the bare step kernels (``move`` + ``force``, no checks) are timed for about
+a second: ``kernel_element_steps_per_s`` separates the kernels from the bookkeeping around them.
 """
 from __future__ import annotations
 
@@ -26,10 +28,14 @@ DEFAULT_SIZES = (10_000, 100_000, 1_000_000)
 NUMPY_MAX = 100_000
 #: smallest model a bench accepts
 MIN_SIZE = 100
-#: estimated peak memory per element [bytes]: state (~0.9-1.2 KB) + builder temporaries (~1 KB)
-BYTES_PER_ELEMENT_ESTIMATE = 1200 + 1000
+#: estimated state size per element [bytes] (852 B in 3-D at row width 16; wider rows cost more)
+STATE_BYTES_PER_ELEMENT = 1200
+#: estimated peak memory per element [bytes]: state + builder and step temporaries (~1 KB)
+BYTES_PER_ELEMENT_ESTIMATE = STATE_BYTES_PER_ELEMENT + 1000
 #: wall time aimed at for the timed part of each run [s] (unless ``steps`` is given)
 TARGET_SECONDS = 3.0
+#: wall time of the extra timing of the bare step kernels [s] (see ``_time_kernels``)
+KERNEL_SECONDS = 1.0
 #: the timed part runs at least this many steps (unless ``steps`` is given)
 MIN_STEPS = 3
 #: rock-like element parameters of the bench specimen (SI units; d = element spacing)
@@ -56,9 +62,10 @@ def available_memory() -> int | None:
         return None
 
 
-def estimated_memory(n: int) -> int:
-    """Rough peak memory [bytes] of building and stepping an ``n``-element bench specimen."""
-    return int(n) * BYTES_PER_ELEMENT_ESTIMATE
+def estimated_memory(n: int, copies: int = 1) -> int:
+    """Rough peak memory [bytes] of building and stepping an ``n``-element bench specimen with
+    ``copies`` extra copies of the state alive (one when several backends share a specimen)."""
+    return int(n) * (BYTES_PER_ELEMENT_ESTIMATE + copies * STATE_BYTES_PER_ELEMENT)
 
 
 def build_specimen(n: int, dim: int = 3, seed: int = 0):
@@ -142,12 +149,41 @@ def _say(progress, msg):
         progress(msg)
 
 
-def bench_one(state, backend: str, steps: int | None = None) -> dict:
-    """Time ``Simulation.run`` of ``state`` (a copy is stepped) on ``backend``; one record."""
+def _time_kernels(sim, max_steps: int, seconds: float = KERNEL_SECONDS):
+    """Element-steps/s of the bare step (the backend's ``move`` + ``force``, nothing else).
+
+    Runs on the simulation's state after the timed run, for about ``seconds`` (at most
+    ``max_steps`` steps); neighbour checks are skipped, so it is only a timing, not a valid
+    continuation of the run (the bench throws the state away afterwards).
+    """
+    from geodem.core.state import broken_code
+
+    s, b = sim.state, sim.backend
+    dt = s.dt
+    k = 0
+    t0 = time.perf_counter()
+    while k < max(1, max_steps):
+        nxt = s.step + 1 + k
+        b.move(dt)
+        b.force(dt, broken_code(nxt, 1), broken_code(nxt, 2))
+        k += 1
+        if k >= 2 and time.perf_counter() - t0 > seconds:
+            break
+    _device_sync(sim)
+    wall = time.perf_counter() - t0
+    return s.n * k / wall, k
+
+
+def bench_one(state, backend: str, steps: int | None = None, copy: bool = True) -> dict:
+    """Time ``Simulation.run`` of ``state`` on ``backend``; one record.
+
+    ``copy=True`` steps a copy (so the next backend starts from the same state); ``False`` steps
+    ``state`` itself (saves the memory of a copy; the state is changed).
+    """
     from geodem.core.engine import Simulation
     from geodem.core.neighbors import row_counts
 
-    st = state.copy()
+    st = state.copy() if copy else state
     n = st.n
     bytes_per_element = st.nbytes() / n
     contacts = float(row_counts(st).mean())
@@ -163,11 +199,15 @@ def bench_one(state, backend: str, steps: int | None = None) -> dict:
     _device_sync(sim)
     warm = time.perf_counter() - t0
     if steps is None:
-        # calibration: the step time without compilation, to aim at TARGET_SECONDS
+        # calibration (not timed in the result): step time without compilation, checks and
+        # rebuilds included when they come within about a second, to aim at TARGET_SECONDS
         t0 = time.perf_counter()
-        sim.run(2)
+        k = 0
+        while k < 2 * sim.check_every and (k < 2 or time.perf_counter() - t0 < 1.0):
+            sim.run(1)
+            k += 1
         _device_sync(sim)
-        per_step = max((time.perf_counter() - t0) / 2.0, 1e-9)
+        per_step = max((time.perf_counter() - t0) / k, 1e-9)
         steps = max(MIN_STEPS, int(math.ceil(TARGET_SECONDS / per_step)))
     rebuilds0 = getattr(sim, "rebuilds", None)
     t0 = time.perf_counter()
@@ -176,6 +216,7 @@ def bench_one(state, backend: str, steps: int | None = None) -> dict:
     wall = time.perf_counter() - t0
     rebuilds = None if rebuilds0 is None else int(sim.rebuilds - rebuilds0)
     broken = int(sim.crack_log().size)
+    kernel_rate, kernel_steps = _time_kernels(sim, max_steps=steps)
     rec = {
         "backend": backend,
         "dim": st.dim,
@@ -187,6 +228,8 @@ def bench_one(state, backend: str, steps: int | None = None) -> dict:
         "wall_s": wall,
         "threads": _threads(backend),
         "rebuilds": rebuilds,
+        "kernel_element_steps_per_s": kernel_rate,
+        "kernel_steps": kernel_steps,
         "bonds_broken": broken,
         "warmup_s": warm,
     }
@@ -210,7 +253,9 @@ def run_bench(sizes=DEFAULT_SIZES, backends=None, steps=None, dim=3, seed=0, pro
 
     Returns one record per (size, backend) that was run, with the keys ``backend, dim, n,
     element_steps_per_s, bytes_per_element, contacts_per_element, steps, wall_s, threads,
-    rebuilds, bonds_broken, warmup_s``. ``bytes_per_element`` is ``state.nbytes() / n`` (all state
+    rebuilds, kernel_element_steps_per_s, kernel_steps, bonds_broken, warmup_s``.
+    ``element_steps_per_s`` is ``n * steps / wall_s`` of ``Simulation.run`` (checks and neighbour
+    rebuilds included); ``kernel_element_steps_per_s`` times the bare step kernels alone. ``bytes_per_element`` is ``state.nbytes() / n`` (all state
     arrays); ``contacts_per_element`` the mean number of valid row entries.
     """
     sizes = _check_sizes(sizes)
@@ -230,10 +275,11 @@ def run_bench(sizes=DEFAULT_SIZES, backends=None, steps=None, dim=3, seed=0, pro
                            f"design and is only benchmarked up to {numpy_max:,} elements")
         if not todo:
             continue
-        need, have = estimated_memory(n), available_memory()
+        copies = 1 if len(todo) > 1 else 0
+        need, have = estimated_memory(n, copies), available_memory()
         if have is not None and need > have:
             _say(progress, f"size n={n:,} skipped: needs about {need / 2**30:.1f} GiB "
-                           f"(~{BYTES_PER_ELEMENT_ESTIMATE / 1000:.1f} KB per element), only "
+                           f"(~{need / n / 1000:.1f} KB per element), only "
                            f"{have / 2**30:.1f} GiB available")
             continue
         _say(progress, f"building a {dim}-D bonded specimen of about {n:,} elements ...")
@@ -245,10 +291,11 @@ def run_bench(sizes=DEFAULT_SIZES, backends=None, steps=None, dim=3, seed=0, pro
             _say(progress, f"size n={n:,} skipped: out of memory while building the specimen")
             continue
         _say(progress, f"  built {state.n:,} elements in {time.perf_counter() - t0:.1f} s")
-        for b in todo:
+        for k, b in enumerate(todo):
             _say(progress, f"  {b}: warm-up and timing ...")
             try:
-                rec = bench_one(state, b, steps=steps)
+                # the last backend of a size steps the specimen itself (no copy)
+                rec = bench_one(state, b, steps=steps, copy=k < len(todo) - 1)
             except MemoryError:
                 gc.collect()
                 _say(progress, f"  {b} skipped at n={n:,}: out of memory")

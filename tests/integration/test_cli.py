@@ -54,6 +54,21 @@ def test_bench_json():
     assert r["bonds_broken"] == 0
 
 
+def test_bench_numpy_limited_and_memory_skip(monkeypatch):
+    res = invoke("bench", "--sizes", "2000", "--backends", "numba,numpy", "--steps", "3",
+                 "--numpy-max", "1000", "--json")
+    assert res.exit_code == 0, res.output
+    assert [r["backend"] for r in json.loads(res.stdout)] == ["numba"]
+    assert "numpy skipped" in flat(res.stderr)
+
+    import geodem.bench
+
+    monkeypatch.setattr(geodem.bench, "available_memory", lambda: 1000)
+    notes = []
+    assert geodem.bench.run_bench(sizes=[2000], backends=["numba"], progress=notes.append) == []
+    assert any("skipped" in m and "available" in m for m in notes)
+
+
 @pytest.mark.parametrize("value", ["abc", "10,x", "50", "1.5e3.2", ""])
 def test_bench_bad_sizes_exit_2(value):
     res = invoke("bench", "--sizes", value, "--json")
