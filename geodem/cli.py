@@ -65,7 +65,7 @@ def _user_error_types():
 
 def _fail(msg: str, code: int) -> None:
     err = _err()
-    err.print(f"[bold red]Error:[/] {msg}", highlight=False, markup=True, soft_wrap=True)
+    err.print(f"[bold red]Error:[/] {escape(msg)}", highlight=False, markup=True, soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -424,7 +424,7 @@ def example_two_balls(
     con.print(f"wall time {s['wall_time_s']:.2f} s; wrote {', '.join(s['files'])} to "
               f"{s['out_dir']}", highlight=False)
     if "two_balls.png" not in s["files"]:
-        con.print(f"plot {s.get('plot', 'skipped')}", highlight=False)
+        con.print(f"plot {s.get('plot', 'skipped')}", highlight=False, markup=False)
 
 
 def run():  # pragma: no cover - entry point for python -m geodem
