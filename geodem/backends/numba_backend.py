@@ -5,6 +5,8 @@ import numpy as np
 
 from geodem.backends import register
 from geodem.backends.kernels import make_kernels
+from geodem.core.checks import any_at_least
+from geodem.core.neighbors import _max_disp_speed
 from geodem.core.state import BROKEN_BASE
 
 
@@ -23,16 +25,16 @@ class HostBackend:
             self.e_el = np.zeros(self.s.n)
 
     def all_finite(self):
-        return bool(np.isfinite(self.s.x).all() and np.isfinite(self.s.v).all())
+        # the reduction turns NaN into inf, so one allocation-free pass answers both questions
+        d2, v2 = _max_disp_speed(self.s.x, self.s.x_ref, self.s.v)
+        return bool(np.isfinite(d2) and np.isfinite(v2))
 
     def max_disp_speed(self):
-        from geodem.core.neighbors import _max_disp_speed
-
         d2, v2 = _max_disp_speed(self.s.x, self.s.x_ref, self.s.v)
         return float(np.sqrt(d2)), float(np.sqrt(v2))
 
     def has_new_cracks(self):
-        return bool((self.s.cstate >= BROKEN_BASE).any())
+        return any_at_least(self.s.cstate, BROKEN_BASE)
 
     @staticmethod
     def is_available():

@@ -39,3 +39,70 @@ def max_overlap(x, r, nbr):
     if col[i] < 0:
         return -np.inf, -1, -1
     return float(ratio[i]), i, int(nbr[i, col[i]])
+
+
+@numba.njit(parallel=True, cache=True)
+def _count_at_least(a, value):
+    n = 0
+    for i in prange(a.shape[0]):
+        for k in range(a.shape[1]):
+            if a[i, k] >= value:
+                n += 1
+    return n
+
+
+def any_at_least(a, value) -> bool:
+    """``(a >= value).any()`` for a 2-D integer array without a temporary array."""
+    return _count_at_least(a, value) > 0
+
+
+@numba.njit(parallel=True, cache=True)
+def _unbalance(x, r, kn, ks, nbr, cstate, fs, a, m, v, eta, free):
+    """Sums of |net force| over free elements and of |contact force| over row entries."""
+    n, w = nbr.shape
+    dim = x.shape[1]
+    fnet = 0.0
+    fcon = 0.0
+    ncon = 0
+    nfree = 0
+    for i in prange(n):
+        isfree = False
+        f2 = 0.0
+        for c in range(dim):
+            if free[i, c] != 0.0:
+                isfree = True
+                t = m[i] * a[i, c] + eta[i] * v[i, c]
+                f2 += t * t
+        if isfree:
+            fnet += np.sqrt(f2)
+            nfree += 1
+        for k in range(w):
+            j = nbr[i, k]
+            if j < 0:
+                break
+            d2 = 0.0
+            s2 = 0.0
+            for c in range(dim):
+                e = x[j, c] - x[i, c]
+                d2 += e * e
+                s2 += fs[i, k, c] * fs[i, k, c]
+            xn = np.sqrt(d2) - r[i] - r[j]
+            knij = kn[i] * kn[j] / (kn[i] + kn[j])
+            fn = knij * xn if (cstate[i, k] == 1 or xn < 0.0) else 0.0
+            fcon += np.sqrt(fn * fn + s2)
+            ncon += 1
+    return fnet, nfree, fcon, ncon
+
+
+def unbalanced_force_ratio(state) -> float:
+    """Mean |net force| on free elements / mean |contact force| (0 = perfect equilibrium).
+
+    The net force of a free element is ``m a + eta v`` (the damping force is not a load), so the
+    ratio measures the contact and body forces left unbalanced (PFC's mean unbalanced ratio).
+    """
+    s = state
+    fnet, nfree, fcon, ncon = _unbalance(s.x, s.r, s.kn, s.ks, s.nbr, s.cstate, s.fs, s.a, s.m,
+                                         s.v, s.eta, s.free)
+    if nfree == 0 or ncon == 0 or fcon == 0.0:
+        return 0.0
+    return (fnet / nfree) / (fcon / ncon)

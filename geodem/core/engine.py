@@ -275,6 +275,28 @@ class Simulation:
                 f"(now {s.dt:.4g} s), or raise kn of these elements")
         return worst
 
+    # ------------------------------------------------------------------ quasi-static helpers
+    def unbalanced_force_ratio(self) -> float:
+        """Mean |net force| / mean |contact force| (see ``geodem.core.checks``)."""
+        from geodem.core.checks import unbalanced_force_ratio
+
+        return unbalanced_force_ratio(self.sync())
+
+    def balance(self, n_across: float, standard_damping: bool = True, steps: int | None = None):
+        """MatDEM's standard balance: ``50 N`` steps (``N`` elements across the loading direction),
+        with the standard damping ``eta_c / N`` on every element unless told otherwise.
+
+        Simulated time stays constant when the element size changes. Returns the unbalanced-force
+        ratio at the end (small = equilibrium).
+        """
+        s = self.state
+        if standard_damping:
+            self.sync()
+            s.eta[:] = timestep.standard_damping(s, n_across)
+            self.backend.push(("eta",))
+        self.run(timestep.standard_balance_steps(n_across) if steps is None else steps)
+        return self.unbalanced_force_ratio()
+
     # ------------------------------------------------------------------ checkpoints
     def save(self, path) -> None:
         """Write a complete checkpoint (state, energy books, crack log) atomically."""
