@@ -65,16 +65,17 @@ class NumpyBackend(HostBackend):
         mu = np.minimum(s.mu[:, None], s.mu[j])
         rate = s.brate.astype(np.float64)
 
+        hks = np.where(ks > 0.0, 0.5 / np.where(ks > 0.0, ks, 1.0), 0.0)  # 1/(2 Ks)
         sh = s.fs
         p = (n * sh).sum(-1)
-        old2 = (sh * sh).sum(-1)
         rot = sh - p[..., None] * n
         rot2 = (rot * rot).sum(-1)
-        qf = _spring(old2 - rot2, ks)
+        qf = p * p * hks
         pr = (n * rel).sum(-1)
-        trial = rot + ks[..., None] * (rel - pr[..., None] * n)
+        u = rel - pr[..., None] * n
+        trial = rot + ks[..., None] * u
         tr2 = (trial * trial).sum(-1)
-        wt = (trial * (rel - pr[..., None] * n)).sum(-1)
+        wt = (trial * u).sum(-1)
 
         bonded = valid & (s.cstate == BONDED)
         fn_b = kn * xn
@@ -108,15 +109,12 @@ class NumpyBackend(HostBackend):
         new = trial * scale[..., None]
 
         fn = np.where(intact | shr_c, fn_b, 0.0) + np.where(comp, fn_u, 0.0)
-        released = _spring(fn_b * fn_b, kn) + _spring(tr2, ks) - 0.5 * (fn_b * pr + wt)
+        released = _spring(fn_b * fn_b, kn) + tr2 * hks - 0.5 * (fn_b * pr + wt)
         qn = np.where(tens, released, 0.0)
         qs = np.where(shr_t, released, 0.0)
-        qs = qs + np.where(shr_c, _spring(tr2 - lim_b * lim_b, ks) - 0.5 * (1.0 - scale) * wt,
-                           0.0)
-        qf = qf + np.where(apart, _spring(rot2, ks), 0.0)
-        ks_safe = np.where(ks > 0.0, ks, 1.0)
-        qf = qf + np.where(slide & (ks > 0.0),
-                           0.5 * ((rot + new) * (trial - new)).sum(-1) / ks_safe, 0.0)
+        qs = qs + np.where(shr_c, (tr2 - lim_b * lim_b) * hks - 0.5 * (1.0 - scale) * wt, 0.0)
+        qf = qf + np.where(apart, rot2 * hks, 0.0)
+        qf = qf + np.where(slide, ((rot + new) * (trial - new)).sum(-1) * hks, 0.0)
         qf = np.where(valid, qf, 0.0)
 
         s.fs[:] = np.where(valid[..., None], new, s.fs)

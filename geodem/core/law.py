@@ -86,54 +86,55 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
     kn = series(kni, knj)
     ks = series(ksi, ksj)
 
-    # rotate the stored spring onto the current tangent plane
+    # 1/(2 Ks) once: every shear energy below is |F|^2 * hks
+    hks = 0.5 / ks if ks > 0.0 else 0.0
+
+    # rotate the stored spring onto the current tangent plane; the projection's energy loss
+    # (|Fs|^2 - |Fs_rot|^2)/(2Ks) = p^2/(2Ks) is booked as friction heat
     p = nx * sx + ny * sy + nz * sz
-    old2 = sx * sx + sy * sy + sz * sz
     sx = sx - p * nx
     sy = sy - p * ny
     sz = sz - p * nz
-    rot2 = sx * sx + sy * sy + sz * sz
-    qf = spring_energy(old2 - rot2, ks)
-    # trial shear force from the tangential relative displacement
+    qf = p * p * hks
+    # trial shear force from the tangential relative displacement u of the step
     pr = nx * rx + ny * ry + nz * rz
-    tx = sx + ks * (rx - pr * nx)
-    ty = sy + ks * (ry - pr * ny)
-    tz = sz + ks * (rz - pr * nz)
+    ux = rx - pr * nx
+    uy = ry - pr * ny
+    uz = rz - pr * nz
+    tx = sx + ks * ux
+    ty = sy + ks * uy
+    tz = sz + ks * uz
     tr2 = tx * tx + ty * ty + tz * tz
-    # work the trial shear force would do over the step's tangential displacement (x2)
-    wt = tx * (rx - pr * nx) + ty * (ry - pr * ny) + tz * (rz - pr * nz)
 
     qn = 0.0
     qs = 0.0
-    cs_new = cs
     mu = min(mui, muj)
     if cs == BONDED:
         fn = kn * xn
         bf = rate * min(kni * xbi, knj * xbj)
         if fn >= bf:
-            # tensile break: normal and shear springs release everything
-            qn = spring_energy(fn * fn, kn) + spring_energy(tr2, ks) - 0.5 * (fn * pr + wt)
+            # tensile break: both springs release what they held (see module doc)
+            qn = spring_energy(fn * fn, kn) + tr2 * hks \
+                - 0.5 * (fn * pr + tx * ux + ty * uy + tz * uz)
             return 0.0, nx, ny, nz, 0.0, 0.0, 0.0, broken_t, qn, qs, qf
         fsmax = rate * min(fs0i, fs0j) - mu * fn
         if fsmax < 0.0 or tr2 > fsmax * fsmax:
             if fn >= 0.0:
                 # shear break in tension: tension vanishes with the bond
-                qs = spring_energy(fn * fn, kn) + spring_energy(tr2, ks) - 0.5 * (fn * pr + wt)
+                qs = spring_energy(fn * fn, kn) + tr2 * hks \
+                    - 0.5 * (fn * pr + tx * ux + ty * uy + tz * uz)
                 return 0.0, nx, ny, nz, 0.0, 0.0, 0.0, broken_s, qn, qs, qf
             # shear break in compression: keep the friction limit, the drop is heat
             lim = -mu * fn
             scale = lim / math.sqrt(tr2)
-            qs = spring_energy(tr2 - lim * lim, ks) - 0.5 * (1.0 - scale) * wt
-            tx = tx * scale
-            ty = ty * scale
-            tz = tz * scale
-            return fn, nx, ny, nz, tx, ty, tz, broken_s, qn, qs, qf
-        return fn, nx, ny, nz, tx, ty, tz, cs_new, qn, qs, qf
+            qs = (tr2 - lim * lim) * hks - 0.5 * (1.0 - scale) * (tx * ux + ty * uy + tz * uz)
+            return fn, nx, ny, nz, tx * scale, ty * scale, tz * scale, broken_s, qn, qs, qf
+        return fn, nx, ny, nz, tx, ty, tz, cs, qn, qs, qf
 
     if xn >= 0.0:
         # unbonded and apart: the spring empties
-        qf += spring_energy(rot2, ks)
-        return 0.0, nx, ny, nz, 0.0, 0.0, 0.0, cs_new, qn, qs, qf
+        qf += (sx * sx + sy * sy + sz * sz) * hks
+        return 0.0, nx, ny, nz, 0.0, 0.0, 0.0, cs, qn, qs, qf
     if hertz:
         ei = kni / (math.pi * ri)
         ej = knj / (math.pi * rj)
@@ -142,19 +143,14 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
         fn = kn * xn
     lim = -mu * fn
     if tr2 > lim * lim:
-        # Coulomb sliding
-        if tr2 > 0.0:
-            scale = lim / math.sqrt(tr2)
-        else:
-            scale = 0.0
+        # Coulomb sliding: heat = mean force x slip, (Fs_rot + Fs_new)/2 . (Fs_trial - Fs_new)/Ks
+        scale = lim / math.sqrt(tr2)
         nxs = tx * scale
         nys = ty * scale
         nzs = tz * scale
-        if ks > 0.0:
-            qf += 0.5 * ((sx + nxs) * (tx - nxs) + (sy + nys) * (ty - nys)
-                         + (sz + nzs) * (tz - nzs)) / ks
-        return fn, nx, ny, nz, nxs, nys, nzs, cs_new, qn, qs, qf
-    return fn, nx, ny, nz, tx, ty, tz, cs_new, qn, qs, qf
+        qf += ((sx + nxs) * (tx - nxs) + (sy + nys) * (ty - nys) + (sz + nzs) * (tz - nzs)) * hks
+        return fn, nx, ny, nz, nxs, nys, nzs, cs, qn, qs, qf
+    return fn, nx, ny, nz, tx, ty, tz, cs, qn, qs, qf
 
 
 def contact_energy(dx, dy, dz, sx, sy, sz, ri, rj, kni, knj, ksi, ksj, cs, hertz):
