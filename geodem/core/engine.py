@@ -180,6 +180,25 @@ class Simulation:
         self.cracks["type"].extend(kind[once].tolist())
         s.cstate[hit] = 0
 
+    def cut(self, i, j) -> int:
+        """Pre-cut joints: remove the bonds of pairs ``(i, j)`` and log them as type 0 cracks.
+
+        Returns the number of bonds cut (pairs that were not bonded are ignored)."""
+        s = self.sync()
+        n = 0
+        for a, b in zip(np.atleast_1d(i).tolist(), np.atleast_1d(j).tolist()):
+            ka = np.flatnonzero(s.nbr[a] == b)
+            kb = np.flatnonzero(s.nbr[b] == a)
+            if ka.size and kb.size and s.cstate[a, ka[0]] == BONDED:
+                s.cstate[a, ka[0]] = 0
+                s.cstate[b, kb[0]] = 0
+                lo, hi = min(a, b), max(a, b)
+                for key, val in (("i", lo), ("j", hi), ("time", s.time), ("type", 0)):
+                    self.cracks[key].append(val)
+                n += 1
+        self.backend.push(("cstate",))
+        return n
+
     def crack_log(self) -> np.ndarray:
         """Structured array of cracks ``(i, j, time, type)``; type 1 tensile, 2 shear, 0 joint."""
         self._harvest()

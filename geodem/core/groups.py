@@ -1,0 +1,97 @@
+"""Named groups of elements and what is done to them: fixing, kinematic motion, loads.
+
+A group is a name in ``state.groups`` mapped to an id stored per element in ``state.group``
+(one group per element; ``"all"`` is id 0 and always means every element). Boundary conditions are
+written into the per-element arrays the kernels read, so a new kind of boundary never touches the
+time-step loop:
+
+* fixed DOF: ``free[i, d] = 0`` and ``v[i, d] = 0``;
+* kinematic (platens, walls): ``free[i, d] = 0`` and ``v[i, d]`` = the prescribed velocity, so the
+  element moves at that velocity whatever the contact forces (their reaction is read from ``a``);
+* loads: ``fload[i]`` [N] per element, booked as external work.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def add_group(state, name: str, mask) -> int:
+    """Put the elements selected by ``mask`` (bool (N,) or indices) into a new group ``name``."""
+    if name in state.groups:
+        raise ValueError(f"group {name!r} already exists; groups: {sorted(state.groups)}")
+    sel = np.zeros(state.n, bool)
+    sel[np.asarray(mask)] = True
+    gid = max(state.groups.values(), default=0) + 1
+    state.groups[name] = gid
+    state.group[sel] = gid
+    return gid
+
+
+def members(state, name: str) -> np.ndarray:
+    """Indices of the elements of group ``name``."""
+    if name == "all":
+        return np.arange(state.n)
+    return np.flatnonzero(state.group_mask(name))
+
+
+def _dofs(state, dofs):
+    if dofs is None:
+        return list(range(state.dim))
+    dofs = [dofs] if isinstance(dofs, (int, np.integer, str)) else list(dofs)
+    names = "xyz"[:state.dim]
+    out = []
+    for d in dofs:
+        k = names.index(d) if isinstance(d, str) and d in names else d
+        if not isinstance(k, (int, np.integer)) or not 0 <= k < state.dim:
+            raise ValueError(f"degree of freedom {d!r} not in {list(names)} / 0..{state.dim - 1}")
+        out.append(int(k))
+    return out
+
+
+def fix(state, name: str, dofs=None) -> None:
+    """Fix the degrees of freedom ``dofs`` (default all; names 'x','y','z' or indices)."""
+    idx = members(state, name)
+    for d in _dofs(state, dofs):
+        state.free[idx, d] = 0.0
+        state.v[idx, d] = 0.0
+
+
+def set_velocity(state, name: str, velocity) -> None:
+    """Move group ``name`` kinematically at ``velocity`` [m/s] (length ``dim``; NaN = leave free)."""
+    vel = np.asarray(velocity, float)
+    if vel.shape != (state.dim,):
+        raise ValueError(f"velocity must have {state.dim} components, got {vel.shape}")
+    idx = members(state, name)
+    for d in range(state.dim):
+        if np.isnan(vel[d]):
+            continue
+        state.free[idx, d] = 0.0
+        state.v[idx, d] = vel[d]
+
+
+def release(state, name: str, dofs=None) -> None:
+    """Make the degrees of freedom free again (velocities are kept)."""
+    idx = members(state, name)
+    for d in _dofs(state, dofs):
+        state.free[idx, d] = 1.0
+
+
+def set_load(state, name: str, force, per: str = "group") -> None:
+    """Apply ``force`` [N] to group ``name``: the group total split evenly (``per='group'``) or
+    the same force on each element (``per='element'``)."""
+    f = np.asarray(force, float)
+    if f.shape != (state.dim,):
+        raise ValueError(f"force must have {state.dim} components, got {f.shape}")
+    idx = members(state, name)
+    if per == "group":
+        f = f / max(len(idx), 1)
+    elif per != "element":
+        raise ValueError(f"per must be 'group' or 'element', got {per!r}")
+    state.fload[idx] = f
+
+
+def reaction(state, name: str) -> np.ndarray:
+    """Contact force on group ``name`` along its fixed/kinematic DOFs [N] (sum over elements)."""
+    idx = members(state, name)
+    fixed = state.free[idx] == 0.0
+    return (state.m[idx, None] * state.a[idx] * fixed).sum(axis=0)
