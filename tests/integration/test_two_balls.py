@@ -11,7 +11,7 @@ def history(zeta, periods=12, backend="numba", dim=2):
     an = tb.analytic(st)
     sim = Simulation(st, backend=backend, dt=0.02 * an["T0"])  # dt = 2 % of the period
     x0 = 1.0  # rest position of ball 1
-    ts, us, es = [0.0], [st.x[1, 0] - x0], [sim.energies()]
+    ts, us = [0.0], [st.x[1, 0] - x0]
 
     def rec(s):
         ts.append(s.state.time)
