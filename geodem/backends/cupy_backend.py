@@ -19,9 +19,8 @@ from geodem.backends.kernels import make_kernels
 from geodem.core.state import BROKEN_BASE
 
 THREADS = 128
-DEVICE_ARRAYS = ("x", "v", "a", "dx", "x_ref", "free", "fload", "r", "m", "kn", "ks", "xb", "fs0", "mu",
-                 "eta", "nbr", "cstate", "fs", "brate", "q_visc", "q_break_n", "q_break_s",
-                 "q_fric", "w_ext")
+DEVICE_ARRAYS = ("x", "v", "a", "dx", "x_ref", "free", "fload", "props", "m", "eta", "nbr",
+                 "cstate", "fs", "brate", "q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext")
 
 
 def simulated() -> bool:
@@ -130,15 +129,15 @@ class CupyBackend:
         s, d = self.s, self.view
         g = s.gravity
         self.k_force[self._blocks(), THREADS](
-            d["x"], d["v"], d["a"], d["dx"], d["free"], d["fload"], d["r"], d["m"], d["kn"],
-            d["ks"], d["xb"], d["fs0"], d["mu"], d["eta"], d["nbr"], d["cstate"], d["fs"],
+            d["x"], d["v"], d["a"], d["dx"], d["free"], d["fload"], d["props"], d["m"],
+            d["eta"], d["nbr"], d["cstate"], d["fs"],
             d["brate"], d["q_visc"], d["q_break_n"], d["q_break_s"], d["q_fric"], d["w_ext"],
             float(g[0]), float(g[1]), float(g[2]) if s.dim == 3 else 0.0, dt, code_t, code_s,
             int(s.hertz))
 
     def elastic_energy(self):
         d = self.view
-        self.k_energy[self._blocks(), THREADS](d["x"], d["r"], d["kn"], d["ks"], d["nbr"],
+        self.k_energy[self._blocks(), THREADS](d["x"], d["props"], d["nbr"],
                                                d["cstate"], d["fs"], int(self.s.hertz),
                                                d["e_el"])
         return self.e_el if self.xp is np else self.e_el.get()

@@ -59,7 +59,7 @@ def _bodies(DIM, jit_device):
         q_visc[i] += qv
         w_ext[i] += we
 
-    def force_body(i, x, v, a, dx, free, fload, r, m, kn, ks, xb, fs0, mu, eta,
+    def force_body(i, x, v, a, dx, free, fload, props, m, eta,
                    nbr, cstate, fs, brate, q_visc, q_bn, q_bs, q_f, w_ext,
                    g0, g1, g2, dt, code_t, code_s, hertz):
         xi0 = x[i, 0]
@@ -71,12 +71,13 @@ def _bodies(DIM, jit_device):
         if DIM == 3:
             xi2 = x[i, 2]
             di2 = dx[i, 2]
-        ri = r[i]
-        kni = kn[i]
-        ksi = ks[i]
-        xbi = xb[i]
-        fs0i = fs0[i]
-        mui = mu[i]
+        # props columns: r, kn, ks, xb, fs0, mu (one cache line per element)
+        ri = props[i, 0]
+        kni = props[i, 1]
+        ksi = props[i, 2]
+        xbi = props[i, 3]
+        fs0i = props[i, 4]
+        mui = props[i, 5]
         f0 = 0.0
         f1 = 0.0
         f2 = 0.0
@@ -99,7 +100,8 @@ def _bodies(DIM, jit_device):
                 x[j, 0] - xi0, x[j, 1] - xi1, ex,
                 dx[j, 0] - di0, dx[j, 1] - di1, ez,
                 fs[i, k, 0], fs[i, k, 1], s2,
-                ri, r[j], kni, kn[j], ksi, ks[j], xbi, xb[j], fs0i, fs0[j], mui, mu[j],
+                ri, props[j, 0], kni, props[j, 1], ksi, props[j, 2], xbi, props[j, 3],
+                fs0i, props[j, 4], mui, props[j, 5],
                 brate[i, k], cs, code_t, code_s, hertz)
             fs[i, k, 0] = sx
             fs[i, k, 1] = sy
@@ -142,7 +144,7 @@ def _bodies(DIM, jit_device):
         q_visc[i] += qv
         w_ext[i] += we
 
-    def energy_body(i, x, r, kn, ks, nbr, cstate, fs, hertz, e_el):
+    def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el):
         # half of each contact's elastic energy (the other half is booked by j's row)
         e = 0.0
         for k in range(nbr.shape[1]):
@@ -156,7 +158,8 @@ def _bodies(DIM, jit_device):
                 s2 = fs[i, k, 2]
             e += contact_energy(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], ex,
                                 fs[i, k, 0], fs[i, k, 1], s2,
-                                r[i], r[j], kn[i], kn[j], ks[i], ks[j], cstate[i, k], hertz)
+                                props[i, 0], props[j, 0], props[i, 1], props[j, 1],
+                                props[i, 2], props[j, 2], cstate[i, k], hertz)
         e_el[i] = 0.5 * e
 
     return move_body, force_body, energy_body
@@ -189,17 +192,17 @@ def make_kernels(dim: int, target: str):
                 move_b(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt)
 
         @par
-        def force(x, v, a, dx, free, fload, r, m, kn, ks, xb, fs0, mu, eta, nbr, cstate, fs,
+        def force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                   brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz):
             for i in prange(x.shape[0]):
-                force_b(i, x, v, a, dx, free, fload, r, m, kn, ks, xb, fs0, mu, eta, nbr, cstate,
+                force_b(i, x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                         fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
                         code_s, hertz)
 
         @par
-        def energy(x, r, kn, ks, nbr, cstate, fs, hertz, e_el):
+        def energy(x, props, nbr, cstate, fs, hertz, e_el):
             for i in prange(x.shape[0]):
-                energy_b(i, x, r, kn, ks, nbr, cstate, fs, hertz, e_el)
+                energy_b(i, x, props, nbr, cstate, fs, hertz, e_el)
 
         return move, force, energy
 
@@ -219,19 +222,19 @@ def make_kernels(dim: int, target: str):
                 move_b(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt)
 
         @cuda.jit
-        def force(x, v, a, dx, free, fload, r, m, kn, ks, xb, fs0, mu, eta, nbr, cstate, fs,
+        def force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                   brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz):
             i = cuda.grid(1)
             if i < x.shape[0]:
-                force_b(i, x, v, a, dx, free, fload, r, m, kn, ks, xb, fs0, mu, eta, nbr, cstate,
+                force_b(i, x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                         fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
                         code_s, hertz)
 
         @cuda.jit
-        def energy(x, r, kn, ks, nbr, cstate, fs, hertz, e_el):
+        def energy(x, props, nbr, cstate, fs, hertz, e_el):
             i = cuda.grid(1)
             if i < x.shape[0]:
-                energy_b(i, x, r, kn, ks, nbr, cstate, fs, hertz, e_el)
+                energy_b(i, x, props, nbr, cstate, fs, hertz, e_el)
 
         return move, force, energy
     raise ValueError(f"unknown kernel target {target!r}; allowed: cpu, cuda")

@@ -58,12 +58,12 @@ class NumbaBackend(HostBackend):
     def force(self, dt, code_t, code_s):
         s = self.s
         g = s.gravity
-        self.k_force(s.x, s.v, s.a, s.dx, s.free, s.fload, s.r, s.m, s.kn, s.ks, s.xb, s.fs0,
-                     s.mu, s.eta, s.nbr, s.cstate, s.fs, s.brate, s.q_visc, s.q_break_n,
+        self.k_force(s.x, s.v, s.a, s.dx, s.free, s.fload, s.props, s.m, s.eta, s.nbr, s.cstate,
+                     s.fs, s.brate, s.q_visc, s.q_break_n,
                      s.q_break_s, s.q_fric, s.w_ext, g[0], g[1], g[2] if s.dim == 3 else 0.0,
                      dt, code_t, code_s, int(s.hertz))
 
     def elastic_energy(self):
         s = self.s
-        self.k_energy(s.x, s.r, s.kn, s.ks, s.nbr, s.cstate, s.fs, int(s.hertz), self.e_el)
+        self.k_energy(s.x, s.props, s.nbr, s.cstate, s.fs, int(s.hertz), self.e_el)
         return self.e_el

@@ -281,7 +281,7 @@ class Simulation:
         return e
 
     def check_overlaps(self):
-        """Raise InstabilityError when a contact overlaps more than ``overlap_limit`` x min radius."""
+        """Raise InstabilityError when an overlap exceeds ``overlap_limit`` x the smaller radius."""
         from geodem.core.checks import max_overlap
 
         s = self.state

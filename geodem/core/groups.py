@@ -57,7 +57,7 @@ def fix(state, name: str, dofs=None) -> None:
 
 
 def set_velocity(state, name: str, velocity) -> None:
-    """Move group ``name`` kinematically at ``velocity`` [m/s] (length ``dim``; NaN = leave free)."""
+    """Move group ``name`` kinematically at ``velocity`` [m/s] (``dim`` values; NaN = free)."""
     vel = np.asarray(velocity, float)
     if vel.shape != (state.dim,):
         raise ValueError(f"velocity must have {state.dim} components, got {vel.shape}")

@@ -672,7 +672,8 @@ def spatial_sort(state: State) -> np.ndarray:
     inv = np.empty(n, np.int32)
     inv[perm] = np.arange(n, dtype=np.int32)
     state.nbr[...] = _permute_nbr(state.nbr, perm, inv)
-    names = ELEMENT_VEC + ELEMENT_SCALAR + ("group", "cstate", "fs", "brate") + ACCUMULATORS
+    names = ELEMENT_VEC + ELEMENT_SCALAR + ("props", "group", "cstate", "fs", "brate") \
+        + ACCUMULATORS
     # one scratch buffer for all arrays (a[perm] would allocate, and page-fault, each time);
     # parallel row gather (numpy's take is single threaded and slow on (N, W, dim))
     scratch = np.empty(max(getattr(state, k).nbytes for k in names), np.uint8)

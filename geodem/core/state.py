@@ -9,12 +9,17 @@ Element arrays (SI units)
                                     fixed ones included: it carries the reaction force)
     dx           (N, dim) float64   displacement of the last step [m] (shear increments)
     x_ref        (N, dim) float64   positions at the last neighbour build [m]
-    r, m         (N,)     float64   radius [m], mass [kg]
-    kn, ks       (N,)     float64   element normal / shear spring stiffness [N/m]
-    xb           (N,)     float64   element breaking displacement [m]
-    fs0          (N,)     float64   element initial shear resistance [N]
-    mu           (N,)     float64   element friction coefficient [-]
+    m            (N,)     float64   mass [kg]
     eta          (N,)     float64   global (mass) damping coefficient [kg/s]
+    props        (N, 8)   float64   the parameters a neighbour's contact needs, packed so that one
+                                    cache line holds them all (the kernels gather them per contact):
+                                    columns r, kn, ks, xb, fs0, mu (+2 spare). Read and write them
+                                    through the named column views:
+    r            (N,)     view      radius [m]
+    kn, ks       (N,)     view      element normal / shear spring stiffness [N/m]
+    xb           (N,)     view      element breaking displacement [m]
+    fs0          (N,)     view      element initial shear resistance [N]
+    mu           (N,)     view      element friction coefficient [-]
     free         (N, dim) float64   1.0 for a free degree of freedom, 0.0 for a fixed or
                                     kinematic one (moved at its velocity ``v``)
     fload        (N, dim) float64   external load per element [N] (gravity is separate)
@@ -39,7 +44,9 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 ELEMENT_VEC = ("x", "v", "a", "dx", "x_ref", "free", "fload")
-ELEMENT_SCALAR = ("r", "m", "kn", "ks", "xb", "fs0", "mu", "eta")
+ELEMENT_SCALAR = ("m", "eta")
+PROPS = ("r", "kn", "ks", "xb", "fs0", "mu")  # columns of ``props``
+PROPS_WIDTH = 8
 ACCUMULATORS = ("q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext")
 ROW_ARRAYS = ("nbr", "cstate", "fs", "brate")
 
@@ -75,13 +82,8 @@ class State:
     x_ref: np.ndarray
     free: np.ndarray
     fload: np.ndarray
-    r: np.ndarray
+    props: np.ndarray
     m: np.ndarray
-    kn: np.ndarray
-    ks: np.ndarray
-    xb: np.ndarray
-    fs0: np.ndarray
-    mu: np.ndarray
     eta: np.ndarray
     group: np.ndarray
     nbr: np.ndarray
@@ -112,7 +114,7 @@ class State:
         return self.nbr.shape[1]
 
     def array_names(self):
-        return ELEMENT_VEC + ELEMENT_SCALAR + ("group",) + ROW_ARRAYS + ACCUMULATORS
+        return ELEMENT_VEC + ELEMENT_SCALAR + ("props", "group") + ROW_ARRAYS + ACCUMULATORS
 
     def arrays(self) -> dict:
         return {k: getattr(self, k) for k in self.array_names()}
@@ -137,6 +139,20 @@ class State:
         return self.group == self.groups[name]
 
 
+def _prop(col: int, name: str):
+    def get(self):
+        return self.props[:, col]
+
+    def put(self, value):
+        self.props[:, col] = value
+
+    return property(get, put, doc=f"column {col} of ``props``: {name}")
+
+
+for _c, _name in enumerate(PROPS):
+    setattr(State, _name, _prop(_c, _name))
+
+
 def new_state(x, r, m, *, dim=None, width=16, kn=0.0, ks=0.0, xb=0.0, fs0=0.0, mu=0.0,
               eta=0.0) -> State:
     """Allocate a state for elements at ``x`` (N, dim) with radii ``r`` and masses ``m``.
@@ -151,14 +167,16 @@ def new_state(x, r, m, *, dim=None, width=16, kn=0.0, ks=0.0, xb=0.0, fs0=0.0, m
         raise ValueError(f"dim={dim} but positions have {d} columns")
 
     def scal(v, name):
-        a = np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))).copy()
-        return a
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))).copy()
+
+    props = np.zeros((n, PROPS_WIDTH))
+    for c, v in enumerate((r, kn, ks, xb, fs0, mu)):
+        props[:, c] = np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))
 
     z = lambda: np.zeros((n, d))  # noqa: E731
     st = State(
         dim=d, x=x.copy(), v=z(), a=z(), dx=z(), x_ref=x.copy(), free=np.ones((n, d)),
-        fload=z(), r=scal(r, "r"), m=scal(m, "m"), kn=scal(kn, "kn"), ks=scal(ks, "ks"),
-        xb=scal(xb, "xb"), fs0=scal(fs0, "fs0"), mu=scal(mu, "mu"), eta=scal(eta, "eta"),
+        fload=z(), props=props, m=scal(m, "m"), eta=scal(eta, "eta"),
         group=np.zeros(n, np.int32),
         nbr=np.full((n, width), -1, np.int32), cstate=np.zeros((n, width), np.int32),
         fs=np.zeros((n, width, d)), brate=np.ones((n, width), np.float32),
