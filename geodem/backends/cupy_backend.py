@@ -1,7 +1,7 @@
 """GPU engine: CuPy arrays stepped by the single-source kernels compiled with numba's CUDA target.
 
-The state is copied to the device once (``attach``); the step loop launches two fused kernels per
-step with no host transfer. ``pull``/``push`` move arrays only when the engine asks (output,
+The state is copied to the device once (``attach``), element-major so that a warp's loads
+coalesce; the step loop launches two fused kernels per step with no host transfer. ``pull``/``push`` move arrays only when the engine asks (output,
 neighbour rebuilds, checks).
 
 Without a GPU, ``GEODEM_CUDA_SIM=1`` (which sets ``NUMBA_ENABLE_CUDASIM=1`` before numba is
@@ -81,11 +81,14 @@ class CupyBackend:
     def push(self, names=None):
         names = DEVICE_ARRAYS if names is None else names
         for k in names:
+            # element-major ("Fortran") order on the device: thread i reading a[i, k] while its
+            # warp neighbours read a[i+1, k], ... touches consecutive addresses (coalesced); the
+            # kernels index [i, k] as on the CPU, only the strides differ
             host = getattr(self.s, k)
             if self.xp is np:
-                self.dev[k] = host.copy()
+                self.dev[k] = np.array(host, order="F")
             else:  # pragma: no cover
-                self.dev[k] = self.xp.asarray(host)
+                self.dev[k] = self.xp.asfortranarray(self.xp.asarray(host))
         self.e_el = self.xp.zeros(self.s.n)
         self._bind()
 
