@@ -5,11 +5,17 @@
     geodem [-v] info [--json]
     geodem [-v] bench [--sizes 10000,100000,1000000] [--backends numba,numpy] [--steps N] [--json]
     geodem [-v] example two-balls -o DIR [--backend B] [--overwrite]
+    geodem run FILE.yaml -o DIR [--backend B] [--set a.b=c ...] [--dry-run] [--resume]
+               [--stop-after-steps N] [--overwrite] [--no-progress] [-v]
+    geodem validate FILE.yaml [--set a.b=c ...] [--backend B]
+    geodem schema [-o FILE]
 
-Backend choice for a run: ``--backend`` > environment variable ``GEODEM_BACKEND`` > ``auto``
-(``cupy`` on a usable GPU, else ``numba``). User errors (bad option values, unknown or unusable
-backend, non-empty output folder) print a message on stderr and exit with status 2; other failures
-exit with status 1. ``-v/--verbose`` (before the command) shows the traceback.
+Backend choice for a run: ``--backend`` > the workflow's ``backend:`` key (``geodem run``) >
+environment variable ``GEODEM_BACKEND`` > ``auto`` (``cupy`` on a usable GPU, else ``numba``).
+User errors (bad option values, unknown or unusable backend, non-empty output folder, invalid
+workflow) print a message on stderr and exit with status 2 -- an invalid workflow as one line per
+problem, ``FILE.yaml:LINE: <field path>: <message>``; other failures exit with status 1.
+``-v/--verbose`` shows the traceback. See docs/workflows.md.
 """
 from __future__ import annotations
 
@@ -59,8 +65,9 @@ def _user_error_types():
     from geodem.backends import BackendError
     from geodem.bench import BenchError
     from geodem.examples import ExampleError
+    from geodem.workflow.errors import WorkflowError
 
-    return (BackendError, BenchError, ExampleError)
+    return (BackendError, BenchError, ExampleError, WorkflowError)
 
 
 def _fail(msg: str, code: int) -> None:
@@ -82,9 +89,17 @@ def _guard(fn):
         except (typer.Exit, typer.Abort, KeyboardInterrupt):
             raise
         except Exception as exc:  # noqa: BLE001 - the one place errors become exit codes
+            from geodem.workflow.errors import WorkflowError
+
             user = isinstance(exc, _user_error_types())
             if _OPTS["verbose"]:
                 traceback.print_exc(file=sys.stderr)
+            if isinstance(exc, WorkflowError):
+                # one plain line per problem (no wrapping): FILE.yaml:LINE: path: message
+                for line in exc.lines():
+                    sys.stderr.write(line + "\n")
+                sys.stderr.flush()
+                raise typer.Exit(USER_ERROR) from None
             msg = escape(str(exc))
             if not user:
                 msg = f"{type(exc).__name__}: {msg}"
@@ -425,6 +440,151 @@ def example_two_balls(
               f"{s['out_dir']}", highlight=False)
     if "two_balls.png" not in s["files"]:
         con.print(f"plot {s.get('plot', 'skipped')}", highlight=False, markup=False)
+
+
+# ----------------------------------------------------------------------------- workflows
+def _parse_sets(values: Optional[list]) -> list:
+    return list(values or [])
+
+
+@app.command("run", help=(
+    "Run a workflow (YAML) into a run directory.\n\n"
+    "Validates FILE.yaml, builds the model and runs its steps; writes summary.json, output.h5, "
+    "log.txt, manifest.json, config.resolved.yaml and checkpoints/ into -o DIR.\n\n"
+    "Exit status: 0 done (or stopped by --stop-after-steps), 1 run-time failure (instability, "
+    "I/O), 2 invalid input, 128+N stopped by signal N (SIGINT 130, SIGTERM 143) after a "
+    "checkpoint."))
+@_guard
+def run_workflow_cmd(
+    file: Annotated[str, typer.Argument(metavar="FILE.yaml", help="Workflow file.")],
+    out: Annotated[Optional[str], typer.Option(
+        "-o", "--out", help="Run directory (created; required unless --dry-run).")] = None,
+    backend: Annotated[Optional[str], typer.Option(
+        "--backend", callback=_parse_backend,
+        help="auto, numba, numpy or cupy. \\[default: the workflow's backend, else "
+             "$GEODEM_BACKEND, else auto]")] = None,
+    sets: Annotated[Optional[list[str]], typer.Option(
+        "--set", metavar="KEY=VALUE",
+        help="Override a value, e.g. --set model.counts=[20,20,20] --set steps.0.nsteps=1e4 "
+             "(repeatable; VALUE is YAML).")] = None,
+    dry_run: Annotated[bool, typer.Option(
+        "--dry-run", help="Validate and build the model, print sizes and estimates; no "
+                          "stepping, nothing written.")] = False,
+    resume: Annotated[bool, typer.Option(
+        "--resume", help="Continue the run in -o DIR from its newest checkpoint (refused if "
+                         "the workflow changed).")] = False,
+    stop_after_steps: Annotated[Optional[int], typer.Option(
+        "--stop-after-steps", min=1, metavar="N",
+        help="Stop cleanly, as if interrupted, once the model has made N time steps in total "
+             "(checkpoint written, status 'interrupted', exit 0).")] = None,
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="Replace the run in an existing run directory.")] = False,
+    no_progress: Annotated[bool, typer.Option(
+        "--no-progress", help="No progress bar (progress lines go to log.txt).")] = False,
+    verbose: Annotated[bool, typer.Option("-v", "--verbose",
+                                          help="Show full tracebacks on errors.")] = False,
+):
+    """Run a workflow (YAML) into a run directory.
+
+    Validates FILE.yaml, builds the model and runs its steps; writes summary.json, output.h5,
+    log.txt, manifest.json, config.resolved.yaml and checkpoints/ into -o DIR.
+
+    Exit status: 0 done (or stopped by --stop-after-steps), 1 run-time failure (instability,
+    I/O), 2 invalid input, 128+N stopped by signal N (SIGINT 130, SIGTERM 143) after a checkpoint.
+    """
+    if verbose:
+        _OPTS["verbose"] = True
+    from geodem.workflow.runner import Runner, dry_run_report, prepare
+
+    prep = prepare(file, sets=_parse_sets(sets), backend=backend)
+    con = _out()
+    if dry_run:
+        for line in dry_run_report(prep):
+            con.print(escape(line), highlight=False, soft_wrap=True)
+        return
+    if out is None:
+        _fail("option -o/--out (the run directory) is required unless --dry-run", USER_ERROR)
+    err = _err()
+    runner = Runner(prep, out, resume=resume, overwrite=overwrite,
+                    stop_after_steps=stop_after_steps,
+                    progress=False if no_progress else err.is_terminal, console=err,
+                    verbose=_OPTS["verbose"])
+    code, summary = runner.run()
+    _print_run_summary(con, summary, out)
+    if code:
+        raise typer.Exit(code)
+
+
+def _print_run_summary(con, s: dict, out: str) -> None:
+    if not con.is_terminal:
+        con = Console(width=120)
+    t = Table(title=f"{s.get('workflow', '')}: {s['status']}", title_justify="left",
+              show_header=False)
+    t.add_column("key", style="bold")
+    t.add_column("value", justify="right")
+    rows = [("time steps", f"{s['steps']:,}"), ("simulated time [s]", f"{s['sim_time']:.6g}"),
+            ("elements", f"{s['n_elements']:,}"), ("wall time [s]", f"{s['wall_time_s']:.3g}"),
+            ("element-steps/s", f"{s['element_steps_per_s']:.3g}"),
+            ("energy closure error", f"{s['energy_closure_rel_error']:.2e}")]
+    for key in ("period_rel_error", "decay_rel_error"):
+        if key in s:
+            rows.append((key.replace("_", " "), f"{s[key]:.2e}"))
+    for k, v in rows:
+        t.add_row(escape(k), escape(v))
+    con.print(t)
+    if s.get("error"):
+        con.print(f"error: {escape(s['error'])}", highlight=False)
+    for name, note in (s.get("plots") or {}).items():
+        if note != name:
+            con.print(f"{escape(name)}: {escape(note)}", highlight=False)
+    if s.get("vtk", "").startswith("skipped"):
+        con.print(f"vtk: {escape(s['vtk'])}", highlight=False)
+    con.print(f"wrote {escape(', '.join(s.get('files', [])))} to {escape(out)}", highlight=False)
+
+
+@app.command("validate", help=(
+    "Check a workflow without running it.\n\n"
+    "Checks the schema, names, sizes and memory, the model build and the time step. Exit 0 if "
+    "valid; else exit 2 and one line per problem: FILE.yaml:LINE: <field path>: <message>."))
+@_guard
+def validate_cmd(
+    file: Annotated[str, typer.Argument(metavar="FILE.yaml", help="Workflow file.")],
+    sets: Annotated[Optional[list[str]], typer.Option(
+        "--set", metavar="KEY=VALUE", help="Override a value (as for geodem run).")] = None,
+    backend: Annotated[Optional[str], typer.Option(
+        "--backend", callback=_parse_backend, help="Backend to check.")] = None,
+    verbose: Annotated[bool, typer.Option("-v", "--verbose",
+                                          help="Show full tracebacks on errors.")] = False,
+):
+    """Check a workflow without running it.
+
+    Checks the schema, names, sizes and memory, the model build and the time step. Exit 0 if
+    valid; else exit 2 and one line per problem: FILE.yaml:LINE: <field path>: <message>."""
+    if verbose:
+        _OPTS["verbose"] = True
+    from geodem.workflow.runner import prepare
+
+    prep = prepare(file, sets=_parse_sets(sets), backend=backend)
+    p = prep.plan
+    sys.stdout.write(f"{file}: valid ({p.n_elements:,} elements, dt = {p.dt:.4g} s, "
+                     f"{p.total_steps:,} time steps, backend {prep.backend})\n")
+
+
+@app.command("schema")
+@_guard
+def schema_cmd(
+    output: Annotated[Optional[str], typer.Option(
+        "-o", "--output", help="Write to this file instead of stdout.")] = None,
+):
+    """Print the JSON schema of workflow files (committed as docs/geodem.schema.json)."""
+    from geodem.workflow.schema import json_schema
+
+    text = json.dumps(json_schema(), indent=2) + "\n"
+    if output:
+        with open(output, "w") as fh:
+            fh.write(text)
+    else:
+        sys.stdout.write(text)
 
 
 def run():  # pragma: no cover - entry point for python -m geodem

@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import time
 from pathlib import Path
 
 import numpy as np
+
+from geodem.cases.two_balls import analytic_curve
 
 #: time step as a fraction of the undamped period, and number of undamped periods simulated
 DT_FRACTION = 0.02
@@ -40,19 +41,6 @@ def _prepare_out_dir(out_dir, overwrite: bool) -> Path:
                            "command line, overwrite=True in Python)")
     out.mkdir(parents=True, exist_ok=True)
     return out
-
-
-def _analytic_curve(t, amp, omega0, gamma):
-    """Free damped oscillator released from rest at ``amp``: displacement at times ``t``."""
-    t = np.asarray(t, dtype=float)
-    if gamma >= omega0:  # critical (or over-) damping: use the critical form at gamma == omega0
-        if math.isclose(gamma, omega0, rel_tol=1e-9):
-            return amp * (1.0 + omega0 * t) * np.exp(-omega0 * t)
-        s = math.sqrt(gamma * gamma - omega0 * omega0)
-        r1, r2 = -gamma + s, -gamma - s
-        return amp * (r2 * np.exp(r1 * t) - r1 * np.exp(r2 * t)) / (r2 - r1)
-    wd = math.sqrt(omega0 * omega0 - gamma * gamma)
-    return amp * np.exp(-gamma * t) * (np.cos(wd * t) + gamma / wd * np.sin(wd * t))
 
 
 def _run_case(damping_ratio, backend, dim, steps, dt_fraction):
@@ -123,7 +111,7 @@ def two_balls(out_dir, backend=None, dim=2, overwrite=False, periods=PERIODS,
     dev = {}
     for key, run, zeta in (("critical", crit, CRITICAL), ("10pct", ten, TEN_PERCENT)):
         a = run["analytic"]
-        ref = _analytic_curve(run["t"], run["amplitude"], a["omega0"], a["decay_rate"])
+        ref = analytic_curve(run["t"], run["amplitude"], a["omega0"], a["decay_rate"])
         dev[key] = float(np.abs(run["u"] - ref).max() / run["amplitude"])
 
     st = ten["state"]
@@ -194,7 +182,7 @@ def _plot(path, crit, ten):
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
     for run, label, col in ((crit, "critical damping", "C0"), (ten, "10 % of critical", "C1")):
         a = run["analytic"]
-        ref = _analytic_curve(run["t"], run["amplitude"], a["omega0"], a["decay_rate"])
+        ref = analytic_curve(run["t"], run["amplitude"], a["omega0"], a["decay_rate"])
         ax1.plot(run["t"], run["u"], color=col, lw=1.5, label=f"{label} (geodem)")
         ax1.plot(run["t"], ref, color="k", lw=0.8, ls="--")
     ax1.plot([], [], color="k", lw=0.8, ls="--", label="analytic")

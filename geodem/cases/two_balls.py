@@ -52,6 +52,19 @@ def analytic(state):
             "decay_rate": gamma, "omega0": w0}
 
 
+def analytic_curve(t, amp, omega0, gamma):
+    """Free damped oscillator released from rest at ``amp``: displacement at times ``t``."""
+    t = np.asarray(t, dtype=float)
+    if gamma >= omega0:  # critical (or over-) damping: use the critical form at gamma == omega0
+        if math.isclose(gamma, omega0, rel_tol=1e-9):
+            return amp * (1.0 + omega0 * t) * np.exp(-omega0 * t)
+        s = math.sqrt(gamma * gamma - omega0 * omega0)
+        r1, r2 = -gamma + s, -gamma - s
+        return amp * (r2 * np.exp(r1 * t) - r1 * np.exp(r2 * t)) / (r2 - r1)
+    wd = math.sqrt(omega0 * omega0 - gamma * gamma)
+    return amp * np.exp(-gamma * t) * (np.cos(wd * t) + gamma / wd * np.sin(wd * t))
+
+
 def measure(times, u):
     """Period (mean spacing of successive maxima) and log decay rate of a displacement history."""
     u = np.asarray(u)

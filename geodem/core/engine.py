@@ -69,6 +69,22 @@ def validate_state(state) -> None:
                                  "fixed elements may touch but not interpenetrate")
 
 
+def _refresh_acceleration(st, snap) -> None:
+    """Make ``a`` consistent with changed freedom, velocity, load or damping (see ``change``)."""
+    m = st.m[:, None]
+    g = np.asarray(st.gravity, dtype=np.float64)[:st.dim][None, :]
+    fr0, fr1 = snap["free"] != 0.0, st.free != 0.0
+    changed = (fr0 != fr1) | (snap["v"] != st.v) | (snap["fload"] != st.fload) | \
+        (snap["eta"] != st.eta)[:, None]
+    if not changed.any():
+        return
+    f_contact = np.where(fr0, m * st.a - m * g - snap["fload"] + snap["eta"][:, None] * snap["v"],
+                         m * st.a)
+    a_new = np.where(fr1, (f_contact + m * g + st.fload - st.eta[:, None] * st.v) / m,
+                     f_contact / m)
+    st.a[changed] = a_new[changed]
+
+
 class Simulation:
     """Advance a :class:`~geodem.core.state.State` in time on a chosen backend.
 
@@ -235,6 +251,8 @@ class Simulation:
             getattr(s, k)[:] = 0.0
         self.backend.push(("q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext"))
         p = self._parts()
+        # below this the books are round-off: squeezing every element by 1e-6 of its radius
+        self._floor = max(1e-12 * 0.5 * float((s.kn * s.r * s.r).sum()), 1e-300)
         self._eg0 = float(p["gravity"].sum())
         self._emech0 = float(p["kinetic"].sum() + p["elastic"].sum())
         s.e0 = self._emech0 + self._eg0
@@ -249,7 +267,7 @@ class Simulation:
         tot["initial"] = self.state.e0
         resid = tot["total"] - self.state.e0 - tot["work_external"]
         scale = max(self._emech0, tot["kinetic"] + tot["elastic"] + tot["heat_total"],
-                    abs(tot["work_external"]), abs(tot["gravity"] - self._eg0), 1e-300)
+                    abs(tot["work_external"]), abs(tot["gravity"] - self._eg0), self._floor)
         tot["closure_residual"] = resid
         tot["closure_error"] = abs(resid) / scale
         if by_group:
@@ -308,13 +326,40 @@ class Simulation:
         Simulated time stays constant when the element size changes. Returns the unbalanced-force
         ratio at the end (small = equilibrium).
         """
-        s = self.state
         if standard_damping:
-            self.sync()
-            s.eta[:] = timestep.standard_damping(s, n_across)
-            self.backend.push(("eta",))
+            eta = timestep.standard_damping(self.sync(), n_across)
+            self.change(lambda st: st.eta.__setitem__(slice(None), eta), book_energy=False)
         self.run(timestep.standard_balance_steps(n_across) if steps is None else steps)
         return self.unbalanced_force_ratio()
+
+    def change(self, fn, book_energy: bool = True, group: str | None = None) -> float:
+        """Change the model between steps: ``fn(state)`` may fix, free or move degrees of
+        freedom, change velocities, loads or damping.
+
+        The stored acceleration of every changed degree of freedom is recomputed for the new
+        conditions (free: ``(F_contact + m g + F_load - eta v) / m``; fixed or kinematic:
+        ``F_contact / m``), so the next velocity-Verlet step starts consistently (without this,
+        switching damping on in a moving model leaves a closure error of a few %). With
+        ``book_energy`` the energy the change itself adds or removes (e.g. the kinetic energy of
+        a group that is stopped) is booked as external work on ``group`` (default: every element).
+        Returns that energy [J].
+        """
+        from geodem.core import groups
+
+        before = self.energies()["total"] if book_energy else 0.0
+        st = self.sync()
+        snap = {k: getattr(st, k).copy() for k in ("free", "v", "fload", "eta")}
+        fn(st)
+        _refresh_acceleration(st, snap)
+        self.backend.push()
+        if not book_energy:
+            return 0.0
+        delta = self.energies()["total"] - before
+        idx = groups.members(st, group or "all")
+        if idx.size and delta != 0.0:
+            st.w_ext[idx] += delta / idx.size
+            self.backend.push(("w_ext",))
+        return delta
 
     # ------------------------------------------------------------------ checkpoints
     def save(self, path) -> None:
@@ -342,6 +387,7 @@ class Simulation:
         sim.rebuilds = 0
         sim.cracks = extra["cracks"]
         sim._eg0, sim._emech0 = extra["eg0"], extra["emech0"]
+        sim._floor = max(1e-12 * 0.5 * float((state.kn * state.r * state.r).sum()), 1e-300)
         sim.backend = select(backend)
         sim.backend.attach(state)
         return sim

@@ -1,0 +1,303 @@
+"""Registered model builders (``model: {type: ...}`` in a workflow).
+
+* ``two_balls``: MatDEM's TwoBalls, ``wall - ball - ball - wall`` bonded in a row
+  (:mod:`geodem.cases.two_balls`), one independent copy per damping case, all in one model;
+* ``lattice_block``: a bonded close-packed block (FCC in 3-D, triangular in 2-D) with named
+  boundary groups.
+
+A builder is a :class:`~geodem.workflow.schema.ModelBase` subclass registered with
+``@register_model("name")``; it returns a :class:`BuiltModel`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Annotated, Literal, Optional
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from geodem.workflow.schema import (
+    DOF_NAMES,
+    F,
+    Int,
+    MacroMaterial,
+    ModelBase,
+    Name,
+    Strict,
+    register_model,
+)
+
+
+def state_bytes_per_element(dim: int, width: int) -> int:
+    """State bytes per element at row width ``width``: 7 (N, dim) float64 arrays, props (8
+    float64), m, eta, group, the rows (nbr int32, cstate int32, fs dim float64, brate float32)
+    and 5 energy accumulators."""
+    return 7 * dim * 8 + 8 * 8 + 2 * 8 + 4 + width * (4 + 4 + 8 * dim + 4) + 5 * 8
+
+
+class BuildError(ValueError):
+    """A model cannot be built from its parameters; ``path`` names the field (inside ``model``
+    or from the top, when it starts with ``'materials'``)."""
+
+    def __init__(self, path, message):
+        super().__init__(message)
+        self.path = tuple(path)
+
+
+@dataclass
+class BuiltModel:
+    """A model ready to run: its state, the reference positions displacements are measured
+    from, the elements across the model (standard damping/balance) and builder information."""
+
+    state: object
+    reference: np.ndarray
+    n_across: float
+    info: dict = field(default_factory=dict)
+
+
+def element_params(cfg, name: str, d: float, dim: int, path=("material",)) -> dict:
+    """Element parameters of material ``name`` for diameter ``d``:
+    ``kn, ks, xb, fs0, mu, rho`` and ``mass`` (None: from rho and the element volume)."""
+    from geodem.materials import macro_to_micro
+
+    mat = cfg.materials[name]
+    if isinstance(mat, MacroMaterial):
+        if dim != 3:
+            raise BuildError(path, f"material {name!r} gives rock properties (E, nu, ...), which "
+                                   "convert to element parameters on the 3-D close-packed "
+                                   "lattice only; use dim: 3, or give element parameters "
+                                   "(rho, kn, ks, xb, fs0, mu) for a 2-D model")
+        try:
+            mic = macro_to_micro(mat.E, mat.nu, mat.Tu, mat.Cu, mat.mu_i, mat.rho, d)
+        except ValueError as exc:
+            key = str(exc).split(" ", 1)[0]
+            where = ("materials", name, key) if key in type(mat).model_fields else \
+                ("materials", name)
+            raise BuildError(where, str(exc)) from None
+        el = mic.element
+        return dict(el, rho=mat.rho, mass=mic.mass)
+    xb = mat.xb if mat.xb is not None else 1.0e6 * d
+    fs0 = mat.fs0 if mat.fs0 is not None else 1.0e12
+    return dict(kn=mat.kn, ks=mat.ks, xb=xb, fs0=fs0, mu=mat.mu, rho=mat.rho, mass=None)
+
+
+def concat_states(parts, shifts):
+    """One state holding independent copies ``parts`` (same dim and row width), each moved by
+    its ``shifts`` row; neighbour indices are offset, groups are taken from the first part."""
+    base = parts[0]
+    offs = np.cumsum([0] + [p.n for p in parts[:-1]])
+    arrays = {}
+    for name in base.array_names():
+        arrays[name] = np.concatenate([getattr(p, name) for p in parts])
+    nbr = [np.where(p.nbr >= 0, p.nbr + o, -1) for p, o in zip(parts, offs)]
+    arrays["nbr"] = np.ascontiguousarray(np.concatenate(nbr).astype(np.int32))
+    shift = np.concatenate([np.broadcast_to(np.asarray(s, float), p.x.shape)
+                            for p, s in zip(parts, shifts)])
+    arrays["x"] = arrays["x"] + shift
+    arrays["x_ref"] = arrays["x_ref"] + shift
+    return dataclasses.replace(base, **arrays, gravity=base.gravity.copy(),
+                               groups=dict(base.groups))
+
+
+# ============================================================================ two_balls
+@register_model("two_balls")
+class TwoBalls(ModelBase):
+    """MatDEM's TwoBalls: ``wall - ball - ball - wall`` along x, bonded, both balls displaced by
+    ``amplitude`` so only the in-phase mode rings (a damped oscillator on one wall bond). One
+    independent copy per entry of ``damping_ratios``, side by side; copy ``LABEL`` has the groups
+    ``LABEL_walls`` (fixed) and ``LABEL_balls``."""
+
+    size_field = "damping_ratios"
+    example = {"type": "two_balls", "material": "rock"}
+    dim: Literal[2, 3] = F(2, description="Dimension")
+    diameter: float = F(1.0, unit="m", gt=0, description="Element diameter (and spacing)")
+    material: Name = F(..., description="Material name (a key of materials)")
+    amplitude: float = F(0.01, unit="m", gt=0,
+                         description="Initial displacement of both balls along x (< diameter/2)")
+    damping_ratios: dict[Name, float] = F(
+        {"critical": 1.0, "ten_percent": 0.1}, min_length=1, max_length=100,
+        description="One copy per entry: label -> damping ratio eta / eta_critical (>= 0)")
+
+    @model_validator(mode="after")
+    def _ratios(self):
+        for k, v in self.damping_ratios.items():
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"damping_ratios.{k} = {v!r}: allowed: a number >= 0 "
+                                 f"(1 = critical damping)")
+        return self
+
+    def n_elements(self):
+        return 4 * len(self.damping_ratios)
+
+    def bytes_per_element(self):
+        return 2 * state_bytes_per_element(self.dim, 4)
+
+    def material_refs(self):
+        return [(("material",), self.material)]
+
+    def group_names(self):
+        out = ["all"]
+        for label in self.damping_ratios:
+            out += [f"{label}_walls", f"{label}_balls"]
+        return out
+
+    def check(self, cfg):
+        if self.amplitude >= 0.5 * self.diameter:
+            return [(("amplitude",), f"amplitude {self.amplitude:g} m is not below half the "
+                                     f"diameter ({0.5 * self.diameter:g} m); allowed: "
+                                     f"0 < amplitude < diameter/2")]
+        return []
+
+    def build(self, cfg):
+        from geodem.cases import two_balls as tb
+
+        d = self.diameter
+        p = element_params(cfg, self.material, d, self.dim)
+        parts, shifts, cases, groups = [], [], {}, {"all": 0}
+        for k, (label, zeta) in enumerate(self.damping_ratios.items()):
+            st = tb.build(dim=self.dim, d=d, rho=p["rho"], kn=p["kn"], amplitude=self.amplitude,
+                          damping_ratio=zeta, xb=p["xb"], fs0=p["fs0"], mu=p["mu"])
+            st.ks[:] = p["ks"]
+            if p["mass"] is not None:
+                st.m[:] = p["mass"]
+                st.eta[[1, 2]] = zeta * 2.0 * math.sqrt(0.5 * p["kn"] * p["mass"])
+            gw, gb = 2 * k + 1, 2 * k + 2
+            groups[f"{label}_walls"], groups[f"{label}_balls"] = gw, gb
+            st.group[:] = np.array([gw, gb, gb, gw], np.int32)
+            an = tb.analytic(st)
+            cases[label] = {"damping_ratio": zeta, "analytic": an, "amplitude": self.amplitude,
+                            "walls": f"{label}_walls", "balls": f"{label}_balls"}
+            shift = np.zeros(self.dim)
+            shift[1] = 2.0 * d * k
+            parts.append(st)
+            shifts.append(shift)
+        state = concat_states(parts, shifts)
+        state.groups = groups
+        ref = state.x.copy()
+        balls = np.isin(state.group, [g for n, g in groups.items() if n.endswith("_balls")])
+        ref[balls, 0] -= self.amplitude  # rest positions
+        return BuiltModel(state, ref, 1.0, {"cases": cases, "diameter": d})
+
+
+# ============================================================================ lattice_block
+SIDES = ("xmin", "xmax", "ymin", "ymax", "zmin", "zmax")
+
+
+class Box(Strict):
+    min: list[float] = F(..., unit="m", min_length=2, max_length=3, description="Lower corner")
+    max: list[float] = F(..., unit="m", min_length=2, max_length=3, description="Upper corner")
+
+
+class GroupSelect(Strict):
+    """Elements of a group: a slab at one side of the block, or a box. An element belongs to one
+    group; the last group that selects it wins."""
+
+    side: Optional[Literal[SIDES]] = F(  # type: ignore[valid-type]
+        None, description="Side of the block (xmin, xmax, ymin, ymax, zmin, zmax)")
+    depth: float = F(0.5, gt=0, description="Slab depth from the side, in element diameters "
+                                            "(0.5 = the outer layer)")
+    box: Optional[Box] = F(None, description="Box selecting element centres [m]")
+
+    @model_validator(mode="after")
+    def _one(self):
+        if (self.side is None) == (self.box is None):
+            raise ValueError("give exactly one of side or box")
+        return self
+
+
+@register_model("lattice_block")
+class LatticeBlock(ModelBase):
+    """A bonded close-packed block: FCC (3-D, layers normal to z) or triangular (2-D) lattice of
+    ``counts`` elements of one ``diameter``, every touching pair bonded, elements in Morton
+    order."""
+
+    size_field = "counts"
+    example = {"type": "lattice_block", "dim": 2, "counts": [6, 6], "diameter": 0.01,
+               "material": "rock", "groups": {"base": {"side": "ymin"}, "top": {"side": "ymax"}}}
+    dim: Literal[2, 3] = F(3, description="Dimension")
+    counts: list[Annotated[Int, Field(ge=1)]] = F(..., min_length=2, max_length=3,
+                          description="Elements along x, rows along y (and layers along z in "
+                                      "3-D); each >= 1")
+    diameter: float = F(..., unit="m", gt=0, description="Element diameter (lattice spacing)")
+    material: Name = F(..., description="Material name (a key of materials)")
+    gravity: Optional[list[float]] = F(None, unit="m/s^2", min_length=2, max_length=3,
+                                       description="Gravity vector (dim components)")
+    groups: dict[Name, GroupSelect] = F({}, description="Named element groups")
+    sort: bool = F(True, description="Reorder elements in Morton order (faster runs)")
+
+    def n_elements(self):
+        return int(np.prod([max(int(c), 0) for c in self.counts], dtype=np.float64))
+
+    def bytes_per_element(self):
+        # state at the default row width, plus the builder's temporaries (pairs, tree) and the
+        # engine's copies (checkpoint writing, energy arrays)
+        width = 16 if self.dim == 3 else 8
+        return state_bytes_per_element(self.dim, width) + 1000
+
+    def material_refs(self):
+        return [(("material",), self.material)]
+
+    def group_names(self):
+        return ["all"] + list(self.groups)
+
+    def n_across(self):
+        return float(max(self.counts))
+
+    def check(self, cfg):
+        out = []
+        if len(self.counts) != self.dim:
+            out.append((("counts",), f"{len(self.counts)} counts for dim = {self.dim}; allowed: "
+                                     f"{self.dim} whole numbers >= 1"))
+        if self.gravity is not None and len(self.gravity) != self.dim:
+            out.append((("gravity",), f"{len(self.gravity)} components for dim = {self.dim}"))
+        for name, g in self.groups.items():
+            if name == "all":
+                out.append((("groups", name), "'all' always means every element; choose "
+                                               "another name"))
+            if g.side is not None and DOF_NAMES.index(g.side[0]) >= self.dim:
+                out.append((("groups", name, "side"), f"side {g.side!r} does not exist in "
+                                                      f"{self.dim}-D"))
+            if g.box is not None:
+                for key in ("min", "max"):
+                    if len(getattr(g.box, key)) != self.dim:
+                        out.append((("groups", name, "box", key),
+                                    f"{self.dim} coordinates needed"))
+        return out
+
+    def build(self, cfg):
+        from geodem.build.lattice import bonded_state, fcc_lattice, triangular_lattice
+        from geodem.core import groups as grp
+        from geodem.core.neighbors import spatial_sort
+
+        d = self.diameter
+        p = element_params(cfg, self.material, d, self.dim)
+        c = [int(v) for v in self.counts]
+        x = fcc_lattice(*c, d) if self.dim == 3 else triangular_lattice(*c, d)
+        st = bonded_state(x, 0.5 * d, density=p["rho"], kn=p["kn"], ks=p["ks"], xb=p["xb"],
+                          fs0=p["fs0"], mu=p["mu"], gap=1e-6 * d)
+        if p["mass"] is not None:
+            st.m[:] = p["mass"]
+        if self.gravity is not None:
+            st.gravity[:self.dim] = self.gravity
+        lo, hi = st.x.min(axis=0), st.x.max(axis=0)
+        for name, g in self.groups.items():
+            if g.side is not None:
+                ax = DOF_NAMES.index(g.side[0])
+                depth = g.depth * d
+                if g.side.endswith("min"):
+                    sel = st.x[:, ax] <= lo[ax] + depth - 1e-9 * d
+                else:
+                    sel = st.x[:, ax] >= hi[ax] - depth + 1e-9 * d
+            else:
+                bmin, bmax = np.asarray(g.box.min), np.asarray(g.box.max)
+                sel = np.all((st.x >= bmin) & (st.x <= bmax), axis=1)
+            if not sel.any():
+                raise BuildError(("groups", name), f"group {name!r} selects no element (block "
+                                                   f"from {lo.round(12).tolist()} to "
+                                                   f"{hi.round(12).tolist()} m)")
+            grp.add_group(st, name, sel)
+        if self.sort:
+            spatial_sort(st)
+        return BuiltModel(st, st.x.copy(), self.n_across(), {"diameter": d})

@@ -1,0 +1,173 @@
+"""The run directory: what a run writes, and the rules for reusing a folder.
+
+::
+
+    DIR/config.resolved.yaml   the validated workflow with every default filled in
+    DIR/manifest.json          versions, config hash, seed, backend, threads, sessions
+    DIR/log.txt                progress and messages (appended on resume)
+    DIR/output.h5              H5MD-like time series and frames (geodem.io.h5)
+    DIR/summary.json           status and key results as numbers
+    DIR/checkpoints/           step_<step>.npz + step_<step>.json (the .json, written last, marks
+                               a complete checkpoint)
+    DIR/vtk/                   .vtp frames + frames.pvd (when asked for and pyvista exists)
+
+An existing, non-empty folder is never overwritten unless ``--overwrite`` is given (and then only
+a geodem run directory, one holding ``manifest.json``), or continued with ``--resume``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path
+
+from geodem.workflow.errors import ErrorItem, WorkflowError
+
+CONFIG = "config.resolved.yaml"
+MANIFEST = "manifest.json"
+LOG = "log.txt"
+OUTPUT = "output.h5"
+SUMMARY = "summary.json"
+CHECKPOINTS = "checkpoints"
+VTK = "vtk"
+_CKPT = re.compile(r"^step_(\d{12})\.json$")
+
+
+def atomic_write(path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        os.chmod(tmp, 0o666 & ~_umask())
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def finite_json(o):
+    """``o`` with non-finite floats (NaN, inf) replaced by None (strict JSON has no NaN)."""
+    import math
+
+    if isinstance(o, float):
+        return o if math.isfinite(o) else None
+    if isinstance(o, dict):
+        return {k: finite_json(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [finite_json(v) for v in o]
+    return o
+
+
+def write_json(path, data) -> None:
+    """Strict JSON (NaN/inf written as null), written atomically."""
+    text = json.dumps(finite_json(json.loads(json.dumps(data, default=_jsonable))), indent=2,
+                      allow_nan=False)
+    atomic_write(path, text + "\n")
+
+
+def _jsonable(o):
+    import numpy as np
+
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+class RunDir:
+    def __init__(self, path):
+        self.path = Path(path)
+
+    def __truediv__(self, name) -> Path:
+        return self.path / name
+
+    @property
+    def checkpoints(self) -> Path:
+        return self.path / CHECKPOINTS
+
+    def _err(self, msg) -> WorkflowError:
+        return WorkflowError(ErrorItem(str(self.path), None, "(run directory)", msg))
+
+    def prepare(self, overwrite: bool, resume: bool) -> None:
+        """Create the folder, or check that it may be reused (WorkflowError, exit 2, if not)."""
+        p = self.path
+        if overwrite and resume:
+            raise self._err("--overwrite and --resume exclude each other: --resume continues the "
+                            "run in this folder, --overwrite deletes it and starts again")
+        if p.exists() and not p.is_dir():
+            raise self._err("exists and is not a folder; choose another -o")
+        empty = not p.exists() or not any(p.iterdir())
+        if resume:
+            if empty:
+                raise self._err("nothing to resume: the folder does not exist or is empty "
+                                "(run without --resume to start)")
+            if self.latest_checkpoint() is None:
+                raise self._err(f"nothing to resume: no complete checkpoint in {self.checkpoints}"
+                                " (run with --overwrite to start again)")
+            return
+        if not empty:
+            if not overwrite:
+                raise self._err("already exists and is not empty; use --overwrite to replace "
+                                "the run in it, --resume to continue it, or choose another -o")
+            if not (p / MANIFEST).exists():
+                raise self._err("is not a geodem run directory (no manifest.json); refusing to "
+                                "delete its contents with --overwrite: choose another -o")
+            for child in p.iterdir():
+                if child.is_dir() and not child.is_symlink():
+                    shutil.rmtree(child)
+                else:
+                    child.unlink()
+        p.mkdir(parents=True, exist_ok=True)
+
+    # ------------------------------------------------------------------ checkpoints
+    def checkpoint_markers(self) -> list[Path]:
+        d = self.checkpoints
+        if not d.is_dir():
+            return []
+        return sorted(f for f in d.iterdir() if _CKPT.match(f.name))
+
+    def latest_checkpoint(self):
+        """``(marker dict, npz path)`` of the newest complete checkpoint, or None."""
+        for marker in reversed(self.checkpoint_markers()):
+            try:
+                data = json.loads(marker.read_text())
+            except (OSError, ValueError):
+                continue
+            npz = marker.with_suffix(".npz")
+            if npz.exists():
+                return data, npz
+        return None
+
+    def write_checkpoint(self, sim, marker: dict, keep: int) -> Path:
+        """Save ``sim`` (atomic .npz) and then its marker (atomic .json); keep the newest
+        ``keep`` checkpoints."""
+        d = self.checkpoints
+        d.mkdir(exist_ok=True)
+        step = int(sim.state.step)
+        npz = d / f"step_{step:012d}.npz"
+        sim.save(npz)
+        write_json(npz.with_suffix(".json"), dict(marker, npz=npz.name))
+        markers = self.checkpoint_markers()
+        for old in markers[:-keep] if keep > 0 else []:
+            for f in (old.with_suffix(".npz"), old):
+                try:
+                    f.unlink()
+                except FileNotFoundError:
+                    pass
+        return npz

@@ -1,0 +1,391 @@
+"""Registered step kinds (``steps: - kind: ...`` in a workflow).
+
+=================  ===========================================================================
+kind               what it does
+=================  ===========================================================================
+run                advance N time steps (or a duration), optionally with a damping setting
+balance            MatDEM's standard balance: standard damping eta_c/N for 50 N steps
+fix                fix degrees of freedom of a group
+release            free degrees of freedom of a group again
+velocity           move a group kinematically at a prescribed velocity
+load               apply an external force to a group
+damping            set the global damping of a group
+two_balls_check    TwoBalls against the analytic damped oscillator (period, decay, overshoot)
+=================  ===========================================================================
+
+A step kind is a :class:`~geodem.workflow.schema.StepBase` subclass registered with
+``@register_step("kind")``; it works through the :class:`~geodem.workflow.runner.StepContext`
+(``ctx.advance(n)`` is the only way time steps are run). Steps that change the model by decree
+(fix, release, velocity) book the energy they add or remove as external work, so the energy
+books stay closed.
+"""
+from __future__ import annotations
+
+import math
+from typing import Literal, Optional
+
+import numpy as np
+from pydantic import model_validator
+
+from geodem.workflow.schema import (
+    DOF_NAMES,
+    F,
+    Int,
+    Name,
+    StepBase,
+    register_step,
+    unknown_group,
+)
+
+
+def _group_problem(cfg, groups, name, path=("group",)):
+    if name not in groups:
+        return [(path, unknown_group(name, groups))]
+    return []
+
+
+def _dofs_problem(cfg, dofs, path=("dofs",)):
+    out = []
+    for k, d in enumerate(dofs or []):
+        if DOF_NAMES.index(d) >= cfg.model.dim:
+            out.append((path + (k,), f"degree of freedom {d!r} does not exist in "
+                                     f"{cfg.model.dim}-D; allowed: "
+                                     f"{', '.join(DOF_NAMES[:cfg.model.dim])}"))
+    return out
+
+
+def _vector_problem(cfg, vec, path, what):
+    if len(vec) != cfg.model.dim:
+        return [(path, f"{what} needs {cfg.model.dim} components (dim = {cfg.model.dim}), got "
+                       f"{len(vec)}")]
+    return []
+
+
+# ============================================================================ run
+@register_step("run")
+class Run(StepBase):
+    """Advance the model ``nsteps`` time steps, or for ``duration`` seconds of simulated time.
+    Optionally set the damping of every element first: ``damping_ratio`` x the element critical
+    damping, or MatDEM's standard damping eta_c / ``standard_damping``."""
+
+    example = {"kind": "run", "nsteps": 20}
+    nsteps: Optional[Int] = F(None, ge=1, description="Time steps to run")
+    duration: Optional[float] = F(None, unit="s", gt=0,
+                                  description="Simulated time to run (rounded up to whole steps)")
+    damping_ratio: Optional[float] = F(None, ge=0, description="Set eta = ratio x the element "
+                                                               "critical damping 2 sqrt(m kn/2)")
+    standard_damping: Optional[float] = F(None, ge=1, description="Set MatDEM's standard damping "
+                                                                  "eta_c / N, N elements across")
+
+    @model_validator(mode="after")
+    def _one(self):
+        if (self.nsteps is None) == (self.duration is None):
+            raise ValueError("give exactly one of nsteps (time steps) or duration (seconds)")
+        if self.damping_ratio is not None and self.standard_damping is not None:
+            raise ValueError("give at most one of damping_ratio and standard_damping")
+        return self
+
+    def planned_steps(self, plan):
+        if self.nsteps is not None:
+            return int(self.nsteps)
+        return max(1, int(math.ceil(self.duration / plan.dt - 1e-9)))
+
+    def execute(self, ctx):
+        from geodem.core import timestep
+
+        if not ctx.resumed:
+            st = ctx.state
+            if self.damping_ratio is not None:
+                ctx.set_eta(self.damping_ratio * timestep.element_critical_damping(st))
+            elif self.standard_damping is not None:
+                ctx.set_eta(timestep.standard_damping(st, self.standard_damping))
+        ctx.advance(self.planned_steps(ctx.plan))
+        return None
+
+
+# ============================================================================ balance
+@register_step("balance")
+class Balance(StepBase):
+    """MatDEM's standard balance: the standard damping eta_c / N on every element, then 50 N
+    time steps (N elements across the model: ``n_across``, default from the model). Reports the
+    unbalanced-force ratio at the end (small = equilibrium)."""
+
+    example = {"kind": "balance", "n_across": 2}
+    n_across: Optional[float] = F(None, ge=1, description="Elements across the model in the "
+                                                          "loading direction (default: the "
+                                                          "model's largest count)")
+    nsteps: Optional[Int] = F(None, ge=1, description="Time steps (default 50 x n_across)")
+    standard_damping: bool = F(True, description="Apply the standard damping first")
+
+    def _n(self, plan):
+        return float(self.n_across if self.n_across is not None else plan.n_across)
+
+    def planned_steps(self, plan):
+        from geodem.core import timestep
+
+        if self.nsteps is not None:
+            return int(self.nsteps)
+        return timestep.standard_balance_steps(self._n(plan))
+
+    def execute(self, ctx):
+        from geodem.core import timestep
+
+        if self.standard_damping and not ctx.resumed:
+            ctx.set_eta(timestep.standard_damping(ctx.state, self._n(ctx.plan)))
+        ctx.advance(self.planned_steps(ctx.plan))
+        ratio = ctx.sim.unbalanced_force_ratio()
+        ctx.log(f"unbalanced-force ratio after the balance: {ratio:.3e}")
+        return {"unbalanced_force_ratio": ratio, "n_across": self._n(ctx.plan)}
+
+
+# ============================================================================ boundary decrees
+class _GroupStep(StepBase):
+    group: Name = F(..., description="Group name")
+
+    def check(self, cfg, groups):
+        return _group_problem(cfg, groups, self.group)
+
+
+@register_step("fix")
+class Fix(_GroupStep):
+    """Fix degrees of freedom of a group (velocity set to zero; the reaction force is recorded)."""
+
+    example = {"kind": "fix", "group": "base"}
+    dofs: Optional[list[Literal[DOF_NAMES]]] = F(  # type: ignore[valid-type]
+        None, min_length=1, description="Degrees of freedom (x, y, z; default all)")
+
+    def check(self, cfg, groups):
+        return super().check(cfg, groups) + _dofs_problem(cfg, self.dofs)
+
+    def execute(self, ctx):
+        from geodem.core import groups
+
+        ctx.decree(lambda st: groups.fix(st, self.group, self.dofs), self.group)
+
+
+@register_step("release")
+class Release(_GroupStep):
+    """Free degrees of freedom of a group again (velocities kept)."""
+
+    example = {"kind": "release", "group": "top"}
+    dofs: Optional[list[Literal[DOF_NAMES]]] = F(  # type: ignore[valid-type]
+        None, min_length=1, description="Degrees of freedom (x, y, z; default all)")
+
+    def check(self, cfg, groups):
+        return super().check(cfg, groups) + _dofs_problem(cfg, self.dofs)
+
+    def execute(self, ctx):
+        from geodem.core import groups
+
+        ctx.decree(lambda st: groups.release(st, self.group, self.dofs), self.group)
+
+
+@register_step("velocity")
+class Velocity(_GroupStep):
+    """Move a group kinematically at ``velocity`` (platens, walls); a null component leaves that
+    degree of freedom as it is."""
+
+    example = {"kind": "velocity", "group": "top", "velocity": [0.0, -0.01]}
+    velocity: list[Optional[float]] = F(..., unit="m/s", min_length=2, max_length=3,
+                                        description="Velocity (dim components; null = free)")
+
+    def check(self, cfg, groups):
+        return super().check(cfg, groups) + _vector_problem(cfg, self.velocity, ("velocity",),
+                                                            "velocity")
+
+    def execute(self, ctx):
+        from geodem.core import groups
+
+        vel = [math.nan if v is None else v for v in self.velocity]
+        ctx.decree(lambda st: groups.set_velocity(st, self.group, vel), self.group)
+
+
+@register_step("load")
+class Load(_GroupStep):
+    """Apply an external force to a group (its work is booked as external work)."""
+
+    example = {"kind": "load", "group": "top", "force": [0.0, -1.0]}
+    force: list[float] = F(..., unit="N", min_length=2, max_length=3,
+                           description="Force (dim components)")
+    per: Literal["group", "element"] = F("group", description="The force is the group total "
+                                                              "(split evenly) or per element")
+
+    def check(self, cfg, groups):
+        return super().check(cfg, groups) + _vector_problem(cfg, self.force, ("force",), "force")
+
+    def execute(self, ctx):
+        from geodem.core import groups
+
+        ctx.decree(lambda st: groups.set_load(st, self.group, self.force, per=self.per),
+                   book_energy=False)
+
+
+@register_step("damping")
+class Damping(StepBase):
+    """Set the global (mass) damping of a group: a ratio of the element critical damping, the
+    standard damping eta_c / N, or eta directly."""
+
+    example = {"kind": "damping", "ratio": 0.1}
+    group: Name = F("all", description="Group name")
+    ratio: Optional[float] = F(None, ge=0, description="eta / element critical damping")
+    standard: Optional[float] = F(None, ge=1, description="N for eta = eta_c / N")
+    eta: Optional[float] = F(None, unit="kg/s", ge=0, description="Damping coefficient")
+
+    @model_validator(mode="after")
+    def _one(self):
+        if sum(v is not None for v in (self.ratio, self.standard, self.eta)) != 1:
+            raise ValueError("give exactly one of ratio, standard or eta")
+        return self
+
+    def check(self, cfg, groups):
+        return _group_problem(cfg, groups, self.group)
+
+    def execute(self, ctx):
+        from geodem.core import groups, timestep
+
+        st = ctx.state
+        if self.ratio is not None:
+            new = self.ratio * timestep.element_critical_damping(st)
+        elif self.standard is not None:
+            new = timestep.standard_damping(st, self.standard)
+        else:
+            new = np.full(st.n, float(self.eta))
+        idx = groups.members(st, self.group)
+        eta = st.eta.copy()
+        eta[idx] = new[idx]
+        ctx.set_eta(eta)
+
+
+# ============================================================================ two_balls_check
+@register_step("two_balls_check")
+class TwoBallsCheck(StepBase):
+    """TwoBalls against the analytic damped oscillator, from the recorded displacements of the
+    balls (``/observables/groups/LABEL_balls/displacement``, best recorded every step): period
+    and decay rate of the ``oscillating`` case, overshoot of the ``critical`` case, largest
+    deviation of each case from its analytic curve. Adds ``period_rel_error`` and
+    ``decay_rel_error`` to summary.json and draws ``two_balls.png`` (with matplotlib)."""
+
+    example = {"kind": "two_balls_check"}
+    example_model = {"type": "two_balls", "material": "rock"}
+    oscillating: Name = F("ten_percent", description="Case (damping_ratios label) whose period "
+                                                     "and decay rate are measured")
+    critical: Optional[Name] = F("critical", description="Critically damped case checked for "
+                                                         "overshoot (null: none)")
+    plot: bool = F(True, description="Draw two_balls.png (needs matplotlib)")
+
+    def check(self, cfg, groups):
+        if cfg.model.type != "two_balls":
+            return [(("kind",), f"two_balls_check needs model type two_balls, not "
+                                f"{cfg.model.type!r}")]
+        out = []
+        labels = list(cfg.model.damping_ratios)
+        for key in ("oscillating", "critical"):
+            v = getattr(self, key)
+            if v is not None and v not in labels:
+                out.append(((key,), f"unknown case {v!r}; the model's damping_ratios: "
+                                    f"{', '.join(labels)}"))
+        if not out and not 0 < cfg.model.damping_ratios[self.oscillating] < 1:
+            out.append((("oscillating",), f"case {self.oscillating!r} has damping ratio "
+                                          f"{cfg.model.damping_ratios[self.oscillating]:g}; it "
+                                          f"must oscillate: allowed 0 < ratio < 1"))
+        for key in ("groups", "energy_groups"):
+            lst = getattr(cfg.outputs.observables, key)
+            for label in {self.oscillating, self.critical} - {None}:
+                g = f"{label}_balls"
+                if lst is not None and g not in lst:
+                    out.append(((), f"outputs.observables.{key} must include {g!r}"))
+        return out
+
+    def _case(self, ctx, label):
+        from geodem.cases.two_balls import analytic_curve
+
+        info = ctx.model.info["cases"][label]
+        step, t, disp = ctx.series(f"observables/groups/{info['balls']}/displacement")
+        u = disp[:, 0]
+        terms = ("kinetic", "gravity", "elastic", "heat_viscous", "heat_break_normal",
+                 "heat_break_shear", "heat_friction")
+        e = {}
+        for term in terms:
+            e[term] = sum(ctx.series(f"observables/groups/{g}/energy/{term}")[2]
+                          for g in (info["balls"], info["walls"]))
+        total = sum(e[k] for k in terms)
+        energies = [{"kinetic": e["kinetic"][i], "elastic": e["elastic"][i],
+                     "heat_viscous": e["heat_viscous"][i], "total": total[i]}
+                    for i in range(len(t))]
+        an = info["analytic"]
+        amp = float(u[0]) if step[0] == 0 else float(info["amplitude"])
+        ref = analytic_curve(t, amp, an["omega0"], an["decay_rate"])
+        dev = float(np.abs(u - ref).max() / amp)
+        return {"t": t, "u": u, "analytic": an, "amplitude": amp, "energies": energies,
+                "deviation": dev}
+
+    def execute(self, ctx):
+        from geodem.cases import two_balls as tb
+
+        osc = self._case(ctx, self.oscillating)
+        an = osc["analytic"]
+        meas = tb.measure(osc["t"], osc["u"])
+        per_rel = abs(meas["T"] - an["T"]) / an["T"]
+        dec_rel = abs(meas["decay_rate"] - an["decay_rate"]) / an["decay_rate"] \
+            if an["decay_rate"] > 0 else abs(meas["decay_rate"])
+        res = {
+            "period": meas["T"], "period_analytic": an["T"], "period_rel_error": per_rel,
+            "period_undamped_analytic": an["T0"], "peaks": meas["peaks"],
+            "decay_rate": meas["decay_rate"], "decay_rate_analytic": an["decay_rate"],
+            "decay_rel_error": dec_rel,
+            "max_deviation_from_analytic": {self.oscillating: osc["deviation"]},
+            "samples": int(len(osc["t"])),
+        }
+        crit = None
+        if self.critical is not None:
+            crit = self._case(ctx, self.critical)
+            res["critical_overshoot"] = max(0.0, -float(crit["u"].min())) / crit["amplitude"]
+            res["max_deviation_from_analytic"][self.critical] = crit["deviation"]
+        ctx.summary["period_rel_error"] = per_rel
+        ctx.summary["decay_rel_error"] = dec_rel
+        ctx.log(f"TwoBalls: period {meas['T']:.6g} s (analytic {an['T']:.6g} s, rel. error "
+                f"{per_rel:.2e}); decay rate {meas['decay_rate']:.6g} 1/s (analytic "
+                f"{an['decay_rate']:.6g} 1/s, rel. error {dec_rel:.2e})")
+        if self.plot and ctx.cfg.outputs.plots:
+            ratios = ctx.cfg.model.damping_ratios
+            labels = [f"{c}, {ratios[c]:g} x critical" if c else "" for c in
+                      (self.critical, self.oscillating)]
+            res["plot"] = ctx.plot("two_balls.png",
+                                   lambda path: _plot(path, crit, osc, labels))
+        return res
+
+
+def _plot(path, crit, osc, labels):
+    """Displacements against the analytic curves, and the energy terms, of both cases."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except Exception:  # noqa: BLE001 - matplotlib missing or unusable: the plot is optional
+        return None
+    from geodem.cases.two_balls import analytic_curve
+
+    runs = [(r, lab) for r, lab in zip((crit, osc), labels) if r is not None]
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    for k, (run, label) in enumerate(runs):
+        a = run["analytic"]
+        ref = analytic_curve(run["t"], run["amplitude"], a["omega0"], a["decay_rate"])
+        ax1.plot(run["t"], run["u"], color=f"C{k}", lw=1.5, label=f"{label} (geodem)")
+        ax1.plot(run["t"], ref, color="k", lw=0.8, ls="--")
+        for key, col, name in (("kinetic", "C2", "kinetic"), ("elastic", "C3", "elastic"),
+                               ("heat_viscous", "C4", "viscous heat"), ("total", "k", "total")):
+            ax2.plot(run["t"], [e[key] for e in run["energies"]], color=col,
+                     lw=1.5 if k else 1.0, ls="-" if k else ":", label=f"{name}, {label}")
+    ax1.plot([], [], color="k", lw=0.8, ls="--", label="analytic")
+    ax1.axhline(0.0, color="0.6", lw=0.5)
+    ax1.set_ylabel("ball displacement [m]")
+    ax1.legend(loc="upper right")
+    ax1.set_title("TwoBalls: damped oscillation against the analytic oscillator")
+    ax2.set_xlabel("time [s]")
+    ax2.set_ylabel("energy [J]")
+    ax2.legend(loc="center right", ncol=2, fontsize="small")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

@@ -1,0 +1,298 @@
+"""`geodem run`: the TwoBalls workflow's targets, the run directory, --dry-run, --overwrite,
+--stop-after-steps + --resume bit-identity, exit codes."""
+import json
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from geodem.cli import app
+from geodem.workflow.runner import prepare
+
+ROOT = Path(__file__).resolve().parents[2]
+TWO_BALLS = ROOT / "workflows" / "two_balls.yaml"
+runner = CliRunner()
+
+PLATEN = """\
+metadata: {name: platen, description: a 2-D bonded block crushed by a platen}
+model:
+  type: lattice_block
+  dim: 2
+  counts: [10, 12]
+  diameter: 0.01
+  material: rock
+  groups:
+    base: {side: ymin}
+    platen: {side: ymax}
+materials:
+  rock: {rho: 2650, kn: 2.0e7, ks: 6.0e6, xb: 2.0e-6, fs0: 20.0, mu: 0.4}
+steps:
+  - {kind: fix, group: base}
+  - {kind: damping, standard: 12}
+  - {kind: velocity, group: platen, velocity: [0.0, -0.5]}
+  - {kind: run, name: load, nsteps: 1200}
+  - {kind: velocity, group: platen, velocity: [0.0, 0.0]}
+  - {kind: balance, nsteps: 300}
+outputs:
+  observables: {every: 50}
+  frames: {every: 400, fields: [position, velocity, force, displacement, bonds]}
+checkpoints: {every_steps: 300}
+"""
+
+
+def run(*args):
+    return runner.invoke(app, ["run", *map(str, args), "--no-progress"])
+
+
+def summary(d):
+    return json.loads((Path(d) / "summary.json").read_text())
+
+
+def h5_contents(path):
+    out = {}
+    with h5py.File(path, "r") as f:
+        f.visititems(lambda n, o: out.__setitem__(n, o[()]) if isinstance(o, h5py.Dataset)
+                     else None)
+    return out
+
+
+@pytest.fixture(scope="module")
+def two_balls_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("tb") / "two_balls"
+    res = run(TWO_BALLS, "-o", out)
+    assert res.exit_code == 0, res.output
+    return out, res
+
+
+@pytest.fixture(scope="module")
+def platen_file(tmp_path_factory):
+    p = tmp_path_factory.mktemp("platen") / "platen.yaml"
+    p.write_text(PLATEN)
+    return p
+
+
+@pytest.fixture(scope="module")
+def platen_run(platen_file):
+    out = platen_file.parent / "full"
+    res = run(platen_file, "-o", out)
+    assert res.exit_code == 0, res.output
+    return out
+
+
+# ------------------------------------------------------------------ TwoBalls
+def test_two_balls_targets(two_balls_run):
+    out, res = two_balls_run
+    s = summary(out)
+    for key in ("status", "steps", "sim_time", "wall_time_s", "element_steps_per_s",
+                "n_elements", "energy_closure_rel_error", "state_sha256"):
+        assert key in s
+    assert s["status"] == "ok" and s["steps"] == 500 and s["n_elements"] == 8
+    assert s["period_rel_error"] < 0.005
+    assert s["decay_rel_error"] < 0.005
+    assert s["energy_closure_rel_error"] < 0.005
+    chk = s["results"]["check"]
+    assert chk["critical_overshoot"] < 1e-6 and chk["peaks"] >= 8 and chk["samples"] == 501
+    assert max(chk["max_deviation_from_analytic"].values()) < 0.005
+    assert s["bonds_broken"] == 0
+    assert len(s["state_sha256"]) == 64
+    try:
+        import matplotlib  # noqa: F401
+        assert (out / "two_balls.png").exists()
+    except ImportError:
+        assert s["plots"]["two_balls.png"].startswith("skipped: matplotlib is not installed")
+        assert "skipped" in res.stdout
+    assert "period rel error" in res.stdout
+
+
+def test_two_balls_matches_the_example(two_balls_run, tmp_path):
+    """The workflow reproduces `geodem example two-balls` (same engine calls, same numbers)."""
+    from geodem.examples import two_balls
+
+    ex = two_balls(tmp_path / "ex", backend="numba", plot=False)
+    s = summary(two_balls_run[0])
+    assert s["period_rel_error"] == pytest.approx(ex["period_rel_error"], rel=1e-9)
+    assert s["decay_rel_error"] == pytest.approx(ex["decay_rel_error"], rel=1e-9)
+
+
+def test_run_directory(two_balls_run):
+    out, _ = two_balls_run
+    for name in ("config.resolved.yaml", "manifest.json", "log.txt", "output.h5",
+                 "summary.json"):
+        assert (out / name).exists(), name
+    man = json.loads((out / "manifest.json").read_text())
+    for key in ("geodem_version", "versions", "config_hash", "seed", "backend", "threads"):
+        assert key in man
+    assert man["versions"]["numpy"] and man["backend"] == "numba" and man["seed"] == 0
+    assert "oscillate" in (out / "log.txt").read_text()
+    ckpts = sorted((out / "checkpoints").glob("step_*.npz"))
+    assert [c.name for c in ckpts] == ["step_000000000250.npz", "step_000000000500.npz"]
+    # the resolved config runs as it is and has the same hash
+    prep = prepare(out / "config.resolved.yaml")
+    assert prep.config_hash == man["config_hash"] == summary(out)["config_hash"]
+    cfg = yaml.safe_load((out / "config.resolved.yaml").read_text())
+    assert cfg["backend"] == "numba" and cfg["steps"][0]["name"] == "oscillate"
+
+
+def test_output_h5_layout(two_balls_run):
+    out, _ = two_balls_run
+    with h5py.File(out / "output.h5", "r") as f:
+        assert tuple(f["h5md"].attrs["version"]) == (1, 1)
+        assert "TwoBalls" in f.attrs["config"] or "two_balls" in f.attrs["config"]
+        assert f.attrs["status"] == "ok"
+        pos = f["particles/all/position"]
+        assert pos["value"].shape == (11, 8, 2)  # frames every 50 steps, 0..500
+        assert list(pos["step"][()]) == list(range(0, 501, 50))
+        assert pos["value"].attrs["unit"] == "m"
+        assert f["particles/all/radius"].shape == (8,)  # static: written once
+        ke = f["observables/energy/kinetic"]
+        assert ke["value"].shape == (501,) and ke["time"][-1] == pytest.approx(
+            summary(out)["sim_time"])
+        disp = f["observables/groups/ten_percent_balls/displacement/value"][()]
+        assert disp.shape == (501, 2) and disp[0, 0] == pytest.approx(0.01)
+        walls = f["observables/groups/critical_walls/reaction/value"][()]
+        assert np.abs(walls[:, 0]).max() > 0  # the walls hold the oscillators
+        assert f["observables/cracks/total/value"][-1] == 0
+        assert f["observables/bonds/intact/value"][0] == 6
+
+
+def test_existing_directory_is_not_overwritten(two_balls_run, tmp_path):
+    out, _ = two_balls_run
+    res = run(TWO_BALLS, "-o", out)
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert "already exists and is not empty" in res.stderr and "--overwrite" in res.stderr
+    # a folder that is not a run directory is never deleted, even with --overwrite
+    other = tmp_path / "precious"
+    other.mkdir()
+    (other / "thesis.tex").write_text("x")
+    res = run(TWO_BALLS, "-o", other, "--overwrite")
+    assert res.exit_code == 2 and "not a geodem run directory" in res.stderr
+    assert (other / "thesis.tex").exists()
+
+
+def test_overwrite(tmp_path):
+    out = tmp_path / "tb"
+    assert run(TWO_BALLS, "-o", out, "--set", "steps.oscillate.nsteps=20").exit_code == 0
+    (out / "stale.txt").write_text("old")
+    res = run(TWO_BALLS, "-o", out, "--overwrite", "--set", "steps.oscillate.nsteps=30",
+              "--set", "steps.check.critical=null")
+    assert res.exit_code == 0, res.output
+    assert not (out / "stale.txt").exists() and summary(out)["steps"] == 30
+
+
+def test_dry_run(tmp_path):
+    out = tmp_path / "dry"
+    res = run(TWO_BALLS, "-o", out, "--dry-run")
+    assert res.exit_code == 0, res.output
+    text = res.stdout
+    for words in ("8 elements", "dt = 0.0001813 s", "500 time steps", "estimated memory",
+                  "estimated run time", "estimated output size", "oscillate (run)"):
+        assert words in text, words
+    assert not out.exists()
+    res = runner.invoke(app, ["run", str(TWO_BALLS), "--dry-run"])  # -o optional here
+    assert res.exit_code == 0
+    res = runner.invoke(app, ["run", str(TWO_BALLS)])
+    assert res.exit_code == 2 and "-o/--out" in res.stderr
+
+
+def test_stop_after_steps_and_resume_is_bit_identical(two_balls_run, tmp_path):
+    out = tmp_path / "tb"
+    res = run(TWO_BALLS, "-o", out, "--stop-after-steps", 180)
+    assert res.exit_code == 0, res.output
+    s = summary(out)
+    assert s["status"] == "interrupted" and s["steps"] == 180
+    assert s["interrupted_by"] == "--stop-after-steps 180"
+    assert s["checkpoint"] == "checkpoints/step_000000000180.npz"
+    with h5py.File(out / "output.h5", "r") as f:  # readable, holds what was done
+        assert f["observables/energy/kinetic/step"][-1] == 180
+    res = run(TWO_BALLS, "-o", out, "--resume")
+    assert res.exit_code == 0, res.output
+    r, full = summary(out), summary(two_balls_run[0])
+    assert r["status"] == "ok" and r["steps"] == 500
+    assert r["state_sha256"] == full["state_sha256"]
+    assert r["period_rel_error"] == full["period_rel_error"]
+    a, b = h5_contents(out / "output.h5"), h5_contents(two_balls_run[0] / "output.h5")
+    assert a.keys() == b.keys()
+    for k in a:
+        assert np.array_equal(a[k], b[k]), k
+    man = json.loads((out / "manifest.json").read_text())
+    assert [x["resumed_from_step"] for x in man["sessions"]] == [None, 180]
+    # resuming a finished run changes nothing
+    res = run(TWO_BALLS, "-o", out, "--resume")
+    assert res.exit_code == 0 and "already complete" in res.stderr
+
+
+def test_resume_with_cracks_rebuilds_and_several_steps(platen_file, platen_run, tmp_path):
+    out = tmp_path / "platen"
+    assert run(platen_file, "-o", out, "--stop-after-steps", 777).exit_code == 0
+    assert summary(out)["steps"] == 777
+    assert run(platen_file, "-o", out, "--resume", "--stop-after-steps", 1350).exit_code == 0
+    assert summary(out)["steps"] == 1350  # stopped inside the balance step
+    res = run(platen_file, "-o", out, "--resume")
+    assert res.exit_code == 0, res.output
+    r, full = summary(out), summary(platen_run)
+    assert full["bonds_broken"] > 50 and r["bonds_broken"] == full["bonds_broken"]
+    assert r["state_sha256"] == full["state_sha256"]
+    assert r["results"] == full["results"]
+    assert r["energy_closure_rel_error"] == full["energy_closure_rel_error"] < 5e-3
+    a, b = h5_contents(out / "output.h5"), h5_contents(platen_run / "output.h5")
+    assert a.keys() == b.keys()
+    for k in a:
+        assert np.array_equal(a[k], b[k]), k
+
+
+def test_resume_refusals(platen_file, platen_run, tmp_path):
+    res = run(platen_file, "-o", platen_run, "--resume", "--set", "steps.load.nsteps=1300")
+    assert res.exit_code == 2 and "workflow changed since the run" in res.stderr
+    res = run(platen_file, "-o", tmp_path / "none", "--resume")
+    assert res.exit_code == 2 and "nothing to resume" in res.stderr
+    res = run(platen_file, "-o", platen_run, "--resume", "--overwrite")
+    assert res.exit_code == 2 and "exclude each other" in res.stderr
+
+
+def test_platen_outputs(platen_run):
+    s = summary(platen_run)
+    assert s["status"] == "ok" and s["steps"] == 1500 and s["n_elements"] == 120
+    assert s["results"]["balance"]["unbalanced_force_ratio"] < 0.05
+    with h5py.File(platen_run / "output.h5", "r") as f:
+        bonds = f["particles/all/bonds/value"][()]
+        assert bonds.shape == (5, 120) and bonds[0].sum() > bonds[-1].sum()
+        react = f["observables/groups/platen/reaction/value"][()]
+        assert react[1:, 1].max() > 0  # the block pushes the platen back up
+        cracks = f["cracks/type"][()]
+        assert cracks.size == s["bonds_broken"]
+        assert f["observables/cracks/total/value"][-1] == s["bonds_broken"]
+
+
+def test_runtime_failure_exit_1(platen_file, tmp_path):
+    out = tmp_path / "unstable"
+    res = run(platen_file, "-o", out, "--set", "steps.velocity_1.velocity=[0, -2000]",
+              "--set", "simulation.monitor_every=20")
+    assert res.exit_code == 1, res.output
+    s = summary(out)
+    assert s["status"] == "failed" and ("overlap" in s["error"] or "reduce dt" in s["error"])
+    assert s["steps"] < 1500 and "state_sha256" in s
+    assert "Traceback" not in res.output
+
+
+def test_unknown_backend_exit_2(tmp_path):
+    res = run(TWO_BALLS, "-o", tmp_path / "x", "--backend", "fortran")
+    assert res.exit_code == 2 and "auto, numba, numpy, cupy" in res.stderr
+    assert not (tmp_path / "x").exists()
+
+
+def test_vtk_output_needs_pyvista(tmp_path):
+    out = tmp_path / "vtk"
+    res = run(TWO_BALLS, "-o", out, "--set", "outputs.vtk.every=100",
+              "--set", "steps.oscillate.nsteps=100", "--set", "steps.check.critical=null")
+    assert res.exit_code == 0, res.output
+    s = summary(out)
+    try:
+        import pyvista  # noqa: F401
+    except ImportError:
+        assert s["vtk"].startswith("skipped: pyvista is not installed")
+        assert "VTK output skipped" in (out / "log.txt").read_text()
+    else:  # pragma: no cover - pyvista installed
+        assert (out / "vtk" / "frames.pvd").exists()

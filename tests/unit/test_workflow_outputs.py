@@ -1,0 +1,162 @@
+"""Output pieces of the workflow layer: the H5MD-like writer, the run directory, progress."""
+import hashlib
+import io
+import json
+
+import h5py
+import numpy as np
+import pytest
+from rich.console import Console
+
+from geodem.io.h5 import H5Writer, read_series
+from geodem.workflow.errors import WorkflowError
+from geodem.workflow.progress import Reporter
+from geodem.workflow.rundir import RunDir, write_json
+from geodem.workflow.runner import state_sha256
+
+
+def test_h5_series_static_truncate_and_reopen(tmp_path):
+    p = tmp_path / "out.h5"
+    w = H5Writer(p, attrs={"config": "a: 1"}, creator=("geodem", "test"))
+    w.series("observables/energy/kinetic", unit="J")
+    w.series("particles/all/position", (3, 2), unit="m", chunk_rows=1)
+    w.static("particles/all/radius", np.ones(3), unit="m")
+    for step in range(0, 50, 10):
+        w.append("observables/energy/kinetic", step, step * 0.1, float(step))
+        w.append("particles/all/position", step, step * 0.1, np.full((3, 2), step))
+    w.flush()
+    with h5py.File(p, "r") as f:  # readable while the writer is open
+        assert f["observables/energy/kinetic/value"].shape == (5,)
+    w.close()
+    w = H5Writer(p, "a")
+    w.truncate(25)
+    w.append("observables/energy/kinetic", 30, 3.0, -1.0)
+    w.close()
+    step, t, v = read_series(p, "observables/energy/kinetic")
+    assert step.tolist() == [0, 10, 20, 30] and v.tolist() == [0.0, 10.0, 20.0, -1.0]
+    step, _, pos = read_series(p, "particles/all/position")
+    assert step.tolist() == [0, 10, 20] and pos.shape == (3, 3, 2)
+    with h5py.File(p, "r") as f:
+        assert tuple(f["h5md"].attrs["version"]) == (1, 1)
+        assert f["h5md/creator"].attrs["name"] == "geodem"
+        assert f["observables/energy/kinetic/value"].attrs["unit"] == "J"
+        assert f["observables/energy/kinetic/time"].attrs["unit"] == "s"
+        assert f.attrs["config"] == "a: 1"
+
+
+def test_state_sha256_is_positions_then_velocities():
+    class S:
+        x = np.arange(6.0).reshape(3, 2)
+        v = np.asfortranarray(np.ones((3, 2)))  # any layout: hashed as contiguous float64
+
+    ref = hashlib.sha256(S.x.tobytes() + np.ones((3, 2)).tobytes()).hexdigest()
+    assert state_sha256(S) == ref
+
+
+def test_run_directory_rules(tmp_path):
+    d = RunDir(tmp_path / "run")
+    d.prepare(overwrite=False, resume=False)
+    (d / "manifest.json").write_text("{}")
+    with pytest.raises(WorkflowError, match="already exists and is not empty"):
+        d.prepare(overwrite=False, resume=False)
+    with pytest.raises(WorkflowError, match="nothing to resume"):
+        d.prepare(overwrite=False, resume=True)
+    (d / "old.txt").write_text("x")
+    d.prepare(overwrite=True, resume=False)
+    assert not (d / "old.txt").exists()
+    f = tmp_path / "afile"
+    f.write_text("x")
+    with pytest.raises(WorkflowError, match="not a folder"):
+        RunDir(f).prepare(False, False)
+
+
+def test_summary_json_is_strict(tmp_path):
+    write_json(tmp_path / "s.json", {"a": float("nan"), "b": [1.0, float("inf")],
+                                     "c": np.float64(2.5), "d": np.arange(2)})
+    text = (tmp_path / "s.json").read_text()
+    assert "NaN" not in text and json.loads(text) == {"a": None, "b": [1.0, None], "c": 2.5,
+                                                      "d": [0, 1]}
+
+
+def test_progress_bar_on_a_terminal(tmp_path):
+    buf = io.StringIO()
+    con = Console(file=buf, force_terminal=True, width=160)
+    rep = Reporter(tmp_path / "log.txt", total_steps=1000, n_elements=10, bar=True,
+                   console=con, log_every_s=0.0)
+    rep.start(0)
+    rep.start_step(0, 2, "load", "run", 1000)
+    rep.update(400, ke=1.25e-3, broken=7, rate=2.5e4)
+    rep.close()
+    out = buf.getvalue()
+    for words in ("1/2 load", "400/1000", "2.5e+04 steps/s", "KE 1.250e-03 J", "broken 7",
+                  "ETA"):
+        assert words in out, words
+    log = (tmp_path / "log.txt").read_text()
+    assert "step 1/2 load (run): 1000 time steps" in log
+    assert "400/1000 time steps (40 %)" in log and "broken bonds 7" in log
+
+
+def test_progress_lines_without_a_terminal(tmp_path):
+    buf = io.StringIO()
+    con = Console(file=buf, force_terminal=False, width=200)
+    rep = Reporter(None, total_steps=100, n_elements=4, bar=False, console=con, log_every_s=0.0)
+    rep.start(0)
+    rep.start_step(0, 1, "run", "run", 100)
+    rep.update(50, ke=2.0, broken=0, rate=100.0)
+    rep.close()
+    out = buf.getvalue()
+    assert "50/100 time steps (50 %), 100 steps/s, 400 element-steps/s, ETA 0:00:00" in out
+    assert "\x1b[" not in out  # plain lines
+
+
+def test_vtk_writer_with_a_stand_in_pyvista(tmp_path, monkeypatch):
+    """pyvista is optional and may be missing here: check the .vtp/.pvd bookkeeping with a
+    stand-in module that records what it is given."""
+    import sys
+    import types
+
+    saved = {}
+
+    class PolyData(dict):
+        def __init__(self, points):
+            super().__init__()
+            self.points = points
+
+        def save(self, path):
+            saved[path] = self
+            open(path, "w").write("vtp")
+
+    monkeypatch.setitem(sys.modules, "pyvista", types.SimpleNamespace(PolyData=PolyData))
+    from geodem.io.vtk import VtkWriter, pyvista_missing
+
+    assert pyvista_missing() == ""
+
+    class St:
+        x = np.array([[0.0, 0.0], [1.0, 0.0]])
+        v = np.zeros((2, 2))
+        r = np.full(2, 0.5)
+        group = np.zeros(2, np.int32)
+        cstate = np.array([[1, -1], [1, -1]])
+        time = 0.0
+
+    w = VtkWriter(tmp_path / "vtk")
+    w.write(St, 0)
+    St.time = 0.5
+    w.write(St, 10, reference=St.x)
+    files = sorted(p.name for p in (tmp_path / "vtk").iterdir())
+    assert files == ["frame_000000000000.vtp", "frame_000000000010.vtp", "frames.pvd"]
+    pvd = (tmp_path / "vtk" / "frames.pvd").read_text()
+    assert pvd.count("<DataSet") == 2 and 'timestep="0.5"' in pvd
+    pts = next(iter(saved.values())).points
+    assert pts.shape == (2, 3)  # 2-D models are written as z = 0 points
+    again = VtkWriter(tmp_path / "vtk")  # a resumed run keeps the listed frames
+    assert len(again.frames) == 2
+
+
+def test_pyvista_missing_says_why(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "pyvista", None)
+    from geodem.io.vtk import pyvista_missing
+
+    assert "pyvista is not installed" in pyvista_missing()
