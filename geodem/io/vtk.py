@@ -1,10 +1,12 @@
-"""ParaView output: one ``.vtp`` file per frame (pyvista) plus a ``.pvd`` collection.
+"""ParaView output: one ``.vtp`` file per frame plus a ``.pvd`` collection.
 
-pyvista is optional (``pip install 'geodem[vis]'``); :func:`pyvista_missing` says why it cannot
-be used, and :class:`VtkWriter` is only created when it can.
+The files are VTK XML PolyData written directly (base64 binary arrays, UInt64 headers), so no VTK
+library is needed to write them; ParaView, pyvista or any VTK reader opens them. Each element is
+a point (with a vertex cell) carrying its radius, velocity, displacement, group and bond count.
 """
 from __future__ import annotations
 
+import base64
 import os
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
@@ -12,13 +14,73 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 
-def pyvista_missing() -> str:
-    """'' when pyvista is importable, else the reason."""
-    try:
-        import pyvista  # noqa: F401
-    except Exception as exc:  # noqa: BLE001 - missing or broken install
-        return f"pyvista is not installed ({type(exc).__name__}); pip install 'geodem[vis]'"
-    return ""
+_VTK_TYPES = {"f8": "Float64", "i4": "Int32", "i8": "Int64"}
+
+
+def _data_array(name, arr, comps=1) -> str:
+    arr = np.ascontiguousarray(arr)
+    raw = arr.tobytes()
+    payload = base64.b64encode(np.uint64(len(raw)).tobytes() + raw).decode("ascii")
+    typ = _VTK_TYPES[arr.dtype.str[1:]]
+    nm = f' Name="{name}"' if name else ""
+    return (f'<DataArray type="{typ}"{nm} NumberOfComponents="{comps}" format="binary">'
+            f"{payload}</DataArray>")
+
+
+def _xyz(a):
+    a = np.asarray(a, dtype=np.float64)
+    return a if a.shape[1] == 3 else np.column_stack([a, np.zeros(len(a))])
+
+
+def write_vtp(path, points, point_data: dict) -> None:
+    """Write points (N, 2|3) with ``point_data`` {name: (N,) or (N, 2|3) array} as a .vtp file
+    (atomically: temp file + rename)."""
+    pts = _xyz(points)
+    n = len(pts)
+    arrays = []
+    for name, val in point_data.items():
+        val = np.asarray(val)
+        if val.dtype.kind == "f":
+            val = val.astype(np.float64)
+        elif val.dtype.kind in "iub":
+            val = val.astype(np.int32)
+        if val.ndim == 2:
+            arrays.append(_data_array(name, _xyz(val), 3))
+        else:
+            arrays.append(_data_array(name, val))
+    ids = np.arange(n, dtype=np.int64)
+    text = (
+        '<?xml version="1.0"?>\n'
+        '<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64">\n'
+        "<PolyData>\n"
+        f'<Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
+        'NumberOfStrips="0" NumberOfPolys="0">\n'
+        "<PointData>\n" + "\n".join(arrays) + "\n</PointData>\n"
+        "<Points>\n" + _data_array("Points", pts, 3) + "\n</Points>\n"
+        "<Verts>\n" + _data_array("connectivity", ids) + "\n"
+        + _data_array("offsets", ids + 1) + "\n</Verts>\n"
+        "</Piece>\n</PolyData>\n</VTKFile>\n")
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def read_vtp(path) -> dict:
+    """Read back what :func:`write_vtp` wrote: {'Points': (N, 3), name: array, ...}."""
+    import re
+
+    out = {}
+    text = Path(path).read_text()
+    for typ, name, comps, payload in re.findall(
+            r'<DataArray type="(\w+)" Name="(\w+)" NumberOfComponents="(\d+)" '
+            r'format="binary">([^<]*)</DataArray>', text):
+        raw = base64.b64decode(payload)
+        nbytes = int(np.frombuffer(raw[:8], np.uint64)[0])
+        dt = {"Float64": np.float64, "Int32": np.int32, "Int64": np.int64}[typ]
+        arr = np.frombuffer(raw[8:8 + nbytes], dt)
+        out[name] = arr.reshape(-1, int(comps)) if int(comps) > 1 else arr
+    return out
 
 
 class VtkWriter:
@@ -26,8 +88,6 @@ class VtkWriter:
     ``frames.pvd`` listing every frame with its time (rewritten after each frame)."""
 
     def __init__(self, folder, pvd_name: str = "frames.pvd"):
-        import pyvista  # noqa: F401 - fail early
-
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.pvd = self.folder / pvd_name
@@ -39,24 +99,14 @@ class VtkWriter:
                 self.frames.append((float(t), f))
 
     def write(self, state, step: int, reference=None) -> str:
-        import pyvista
-
         x = np.asarray(state.x)
-        pts = x if x.shape[1] == 3 else np.column_stack([x, np.zeros(len(x))])
-        cloud = pyvista.PolyData(np.ascontiguousarray(pts))
-        cloud["radius"] = np.asarray(state.r)
-        v = np.asarray(state.v)
-        cloud["velocity"] = v if v.shape[1] == 3 else np.column_stack([v, np.zeros(len(v))])
+        data = {"radius": np.asarray(state.r), "velocity": np.asarray(state.v)}
         if reference is not None:
-            u = x - reference
-            cloud["displacement"] = u if u.shape[1] == 3 else np.column_stack(
-                [u, np.zeros(len(u))])
-        cloud["group"] = np.asarray(state.group)
-        cloud["bonds"] = (np.asarray(state.cstate) == 1).sum(axis=1).astype(np.int32)
+            data["displacement"] = x - reference
+        data["group"] = np.asarray(state.group)
+        data["bonds"] = (np.asarray(state.cstate) == 1).sum(axis=1)
         name = f"frame_{int(step):012d}.vtp"
-        tmp = self.folder / f".{name}.tmp.vtp"
-        cloud.save(str(tmp))
-        os.replace(tmp, self.folder / name)
+        write_vtp(self.folder / name, x, data)
         self.frames = [(t, f) for t, f in self.frames if f != name]
         self.frames.append((float(state.time), name))
         self._write_pvd()

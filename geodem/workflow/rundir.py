@@ -9,7 +9,7 @@
     DIR/summary.json           status and key results as numbers
     DIR/checkpoints/           step_<step>.npz + step_<step>.json (the .json, written last, marks
                                a complete checkpoint)
-    DIR/vtk/                   .vtp frames + frames.pvd (when asked for and pyvista exists)
+    DIR/vtk/                   .vtp frames + frames.pvd (when asked for)
 
 An existing, non-empty folder is never overwritten unless ``--overwrite`` is given (and then only
 a geodem run directory, one holding ``manifest.json``), or continued with ``--resume``.

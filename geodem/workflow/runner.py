@@ -826,16 +826,10 @@ class Runner:
             self.h5 = H5Writer(path, "w", attrs=attrs, creator=("geodem", __version__))
         vtk = self.cfg.outputs.vtk
         if vtk.every:
-            from geodem.io.vtk import VtkWriter, pyvista_missing
+            from geodem.io.vtk import VtkWriter
 
-            why = pyvista_missing()
-            if why:
-                self.notes.append(f"vtk output skipped: {why}")
-                self.vtk_note = f"skipped: {why}"
-                self.reporter.message(f"VTK output skipped: {why}")
-            else:
-                self.vtk = VtkWriter(self.dir / rd.VTK)
-                self.vtk_note = "vtk/frames.pvd"
+            self.vtk = VtkWriter(self.dir / rd.VTK)
+            self.vtk_note = "vtk/frames.pvd"
 
     def _read_summary(self) -> dict:
         try:

@@ -146,7 +146,7 @@ class FramesSpec(Strict):
 
 
 class VtkSpec(Strict):
-    """ParaView output (``vtk/*.vtp`` + ``vtk/frames.pvd``); needs pyvista."""
+    """ParaView output (``vtk/*.vtp`` + ``vtk/frames.pvd``, VTK XML written directly)."""
 
     every: Optional[Int] = F(None, ge=1, description="Write a .vtp frame every N time steps "
                                                      "(default: no VTK output)")

@@ -109,54 +109,35 @@ def test_progress_lines_without_a_terminal(tmp_path):
     assert "\x1b[" not in out  # plain lines
 
 
-def test_vtk_writer_with_a_stand_in_pyvista(tmp_path, monkeypatch):
-    """pyvista is optional and may be missing here: check the .vtp/.pvd bookkeeping with a
-    stand-in module that records what it is given."""
-    import sys
-    import types
-
-    saved = {}
-
-    class PolyData(dict):
-        def __init__(self, points):
-            super().__init__()
-            self.points = points
-
-        def save(self, path):
-            saved[path] = self
-            open(path, "w").write("vtp")
-
-    monkeypatch.setitem(sys.modules, "pyvista", types.SimpleNamespace(PolyData=PolyData))
-    from geodem.io.vtk import VtkWriter, pyvista_missing
-
-    assert pyvista_missing() == ""
+def test_vtk_writer_round_trip(tmp_path):
+    """The .vtp files are VTK XML written directly: read them back and check every array."""
+    from geodem.io.vtk import VtkWriter, read_vtp
 
     class St:
-        x = np.array([[0.0, 0.0], [1.0, 0.0]])
-        v = np.zeros((2, 2))
-        r = np.full(2, 0.5)
-        group = np.zeros(2, np.int32)
-        cstate = np.array([[1, -1], [1, -1]])
+        x = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, 0.8]])
+        v = np.array([[1.0, 2.0], [0.0, 0.0], [-1.0, 0.5]])
+        r = np.array([0.5, 0.5, 0.4])
+        group = np.array([0, 1, 1], np.int32)
+        cstate = np.array([[1, 1], [1, 0], [1, 0]], np.int32)
         time = 0.0
 
     w = VtkWriter(tmp_path / "vtk")
     w.write(St, 0)
     St.time = 0.5
-    w.write(St, 10, reference=St.x)
+    w.write(St, 10, reference=St.x - 0.1)
     files = sorted(p.name for p in (tmp_path / "vtk").iterdir())
     assert files == ["frame_000000000000.vtp", "frame_000000000010.vtp", "frames.pvd"]
     pvd = (tmp_path / "vtk" / "frames.pvd").read_text()
     assert pvd.count("<DataSet") == 2 and 'timestep="0.5"' in pvd
-    pts = next(iter(saved.values())).points
-    assert pts.shape == (2, 3)  # 2-D models are written as z = 0 points
+    got = read_vtp(tmp_path / "vtk" / "frame_000000000010.vtp")
+    assert got["Points"].shape == (3, 3) and np.all(got["Points"][:, 2] == 0)  # 2-D: z = 0
+    assert np.array_equal(got["Points"][:, :2], St.x)
+    assert np.array_equal(got["velocity"][:, :2], St.v)
+    assert np.allclose(got["displacement"][:, :2], 0.1)
+    assert np.array_equal(got["radius"], St.r)
+    assert np.array_equal(got["group"], [0, 1, 1]) and np.array_equal(got["bonds"], [2, 1, 1])
+    assert np.array_equal(got["offsets"], [1, 2, 3])
     again = VtkWriter(tmp_path / "vtk")  # a resumed run keeps the listed frames
     assert len(again.frames) == 2
 
 
-def test_pyvista_missing_says_why(monkeypatch):
-    import sys
-
-    monkeypatch.setitem(sys.modules, "pyvista", None)
-    from geodem.io.vtk import pyvista_missing
-
-    assert "pyvista is not installed" in pyvista_missing()
