@@ -295,3 +295,16 @@ def test_vtk_output(tmp_path):
     assert len(frames) >= 2 and pvd.count("<DataSet") == len(frames)
     last = read_vtp(frames[-1])
     assert last["Points"].shape == (summary(out)["n_elements"], 3)
+
+
+def test_checkpoints_by_wall_clock_and_keep(tmp_path):
+    """every_seconds writes checkpoints as wall-clock time passes; only the newest `keep` stay."""
+    out = tmp_path / "clock"
+    res = run(TWO_BALLS, "-o", out, "--set", "checkpoints.every_seconds=1e-6",
+              "--set", "checkpoints.keep=3", "--set", "checkpoints.final=false",
+              "--set", "steps.oscillate.nsteps=20", "--set", "steps.check.critical=null")
+    assert res.exit_code == 0, res.output
+    files = sorted((out / "checkpoints").glob("*.npz"))
+    assert len(files) == 3  # many were written (one per chunk), the newest three kept
+    log = (out / "log.txt").read_text().lower()
+    assert log.count("checkpoint") >= 3
