@@ -4,7 +4,6 @@
 
     geodem [-v] info [--json]
     geodem [-v] bench [--sizes 10000,100000,1000000] [--backends numba,numpy] [--steps N] [--json]
-    geodem [-v] example two-balls -o DIR [--backend B] [--overwrite]
     geodem run FILE.yaml -o DIR [--backend B] [--set a.b=c ...] [--dry-run] [--resume]
                [--stop-after-steps N] [--overwrite] [--no-progress] [-v]
     geodem validate FILE.yaml [--set a.b=c ...] [--backend B]
@@ -42,9 +41,6 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
-example_app = typer.Typer(help="Run a ready-made example and write its results to a folder.",
-                          no_args_is_help=True)
-app.add_typer(example_app, name="example")
 
 _OPTS = {"verbose": False}
 USER_ERROR = 2
@@ -64,10 +60,9 @@ def _err() -> Console:
 def _user_error_types():
     from geodem.backends import BackendError
     from geodem.bench import BenchError
-    from geodem.examples import ExampleError
     from geodem.workflow.errors import WorkflowError
 
-    return (BackendError, BenchError, ExampleError, WorkflowError)
+    return (BackendError, BenchError, WorkflowError)
 
 
 def _fail(msg: str, code: int) -> None:
@@ -400,46 +395,6 @@ def bench(
               "element; contacts: mean row entries per element", highlight=False)
     if not records:
         con.print("no run was made (see the messages above)")
-
-
-# ----------------------------------------------------------------------------- examples
-@example_app.command("two-balls")
-@_guard
-def example_two_balls(
-    out: Annotated[str, typer.Option("-o", "--out", help="Output folder (created).")],
-    backend: Annotated[Optional[str], typer.Option(
-        "--backend", callback=_parse_backend,
-        help="auto, numba, numpy or cupy. \\[default: $GEODEM_BACKEND, else auto]")] = None,
-    overwrite: Annotated[bool, typer.Option(
-        "--overwrite", help="Write into an existing non-empty output folder.")] = False,
-    dim: Annotated[int, typer.Option("--dim", min=2, max=3, help="Dimension (2 or 3).")] = 2,
-):
-    """TwoBalls: two bonded balls between walls, critically and 10 %-damped, vs the analytic
-    oscillator. Writes summary.json, history.csv and (with matplotlib) two_balls.png."""
-    from geodem.examples import two_balls
-
-    name = _resolve_backend(backend)
-    s = two_balls(out, backend=name, dim=dim, overwrite=overwrite)
-    con = _out()
-    t = Table(title=f"TwoBalls ({s['dim']}-D, backend {s['backend']}, {s['steps']} steps per run "
-                    f"at dt = {s['dt_over_T0']:.0%} of the period)", title_justify="left")
-    for col in ("quantity", "geodem", "analytic", "relative error"):
-        t.add_column(col, justify="left" if col == "quantity" else "right")
-    rows = (
-        ("period, 10 % damping [s]", f"{s['period']:.6g}", f"{s['period_analytic']:.6g}",
-         f"{s['period_rel_error']:.2e}"),
-        ("decay rate, 10 % damping [1/s]", f"{s['decay_rate']:.6g}",
-         f"{s['decay_rate_analytic']:.6g}", f"{s['decay_rel_error']:.2e}"),
-        ("overshoot, critical damping [-]", f"{s['critical_overshoot']:.2e}", "0", ""),
-        ("energy closure error, max [-]", f"{s['energy_closure_rel_error']:.2e}", "0", ""),
-    )
-    for row in rows:
-        t.add_row(*(escape(c) for c in row))
-    con.print(t)
-    con.print(f"wall time {s['wall_time_s']:.2f} s; wrote {', '.join(s['files'])} to "
-              f"{s['out_dir']}", highlight=False)
-    if "two_balls.png" not in s["files"]:
-        con.print(f"plot {s.get('plot', 'skipped')}", highlight=False, markup=False)
 
 
 # ----------------------------------------------------------------------------- workflows

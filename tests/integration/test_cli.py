@@ -1,4 +1,4 @@
-"""The ``geodem`` command line: info, bench --json, example two-balls, user errors (exit 2)."""
+"""The ``geodem`` command line: info, bench --json, user errors (exit 2)."""
 import json
 import re
 import subprocess
@@ -86,51 +86,6 @@ def test_bench_unknown_backend_exit_2():
     assert "--backends" in msg and "fortran" in msg
     assert "auto, numba, numpy, cupy" in msg
     assert "Traceback" not in res.output
-
-
-def test_example_unknown_backend_exit_2(tmp_path):
-    res = invoke("example", "two-balls", "-o", str(tmp_path / "x"), "--backend", "gpu")
-    assert res.exit_code == 2
-    msg = flat(res.stderr)
-    assert "--backend" in msg and "auto, numba, numpy, cupy" in msg
-    assert not (tmp_path / "x").exists()
-
-
-def test_env_backend_unknown_exit_2(tmp_path):
-    res = invoke("example", "two-balls", "-o", str(tmp_path / "x"),
-                 env={"GEODEM_BACKEND": "fortran"})
-    assert res.exit_code == 2
-    msg = flat(res.stderr)
-    assert "GEODEM_BACKEND" in msg and "auto, numba, numpy, cupy" in msg
-    assert "Traceback" not in res.output
-
-
-def test_example_two_balls(tmp_path):
-    out = tmp_path / "two_balls"
-    # --backend beats $GEODEM_BACKEND (which would fail: no such backend)
-    res = invoke("example", "two-balls", "-o", str(out), "--backend", "numba",
-                 env={"GEODEM_BACKEND": "fortran"})
-    assert res.exit_code == 0, res.output
-    s = json.loads((out / "summary.json").read_text())
-    assert s["status"] == "ok" and s["backend"] == "numba" and s["n_elements"] == 4
-    assert s["period_rel_error"] < 0.005
-    assert s["decay_rel_error"] < 0.005
-    assert s["energy_closure_rel_error"] < 0.005
-    assert s["critical_overshoot"] < 1e-6
-    assert s["peaks"] >= 8 and s["bonds_broken"] == 0
-    lines = (out / "history.csv").read_text().splitlines()
-    assert lines[0].startswith("time,u_critical,u_10pct,")
-    assert len(lines) == s["steps"] + 2  # header + initial state + one row per step
-    assert "period" in res.stdout
-
-    # a second run into the same (now non-empty) folder is refused ...
-    again = invoke("example", "two-balls", "-o", str(out))
-    assert again.exit_code == 2
-    assert "not empty" in flat(again.stderr) and "--overwrite" in flat(again.stderr)
-    assert "Traceback" not in again.output
-    # ... and -v shows the traceback of the same user error
-    verbose = invoke("-v", "example", "two-balls", "-o", str(out))
-    assert verbose.exit_code == 2 and "Traceback" in verbose.stderr
 
 
 def test_python_dash_m():
