@@ -1,0 +1,124 @@
+"""Material library: every file loads, every value has a source, conversion round-trips."""
+import copy
+
+import pytest
+import yaml
+
+from geodem.materials import MU_I_MIN, micro_to_macro
+from geodem.materials_library import (
+    LIBRARY_DIR,
+    PROPERTY_NAMES,
+    Material,
+    MaterialError,
+    list_materials,
+    load_material,
+    to_micro,
+)
+
+REQUIRED = {"granite", "sandstone", "marble", "limestone", "mudstone", "stiff_clay"}
+
+
+def test_library_lists_required_materials():
+    assert REQUIRED <= set(list_materials())
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED))
+def test_file_loads_with_sources(name):
+    m = load_material(name)
+    assert m.name == name and m.calibrated is None
+    for k in PROPERTY_NAMES:
+        s = getattr(m.properties, k).source
+        assert s.author.strip() and s.title.strip() and s.what.strip()
+        assert 1900 < s.year < 2030
+    v = m.values()
+    assert 0 < v["Tu"] < v["Cu"] and v["E"] > 0 and v["rho"] > 0 and v["mu_i"] > 0
+    if v["nu"] > 0.2:  # the lattice limit must be said in the file
+        assert any("0.2" in n and "lattice" in n for n in m.notes)
+    assert load_material(LIBRARY_DIR / f"{name}.yaml") == m  # explicit path
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED))
+def test_to_micro_round_trip(name):
+    d = 0.01
+    r = to_micro(name, d)
+    back = micro_to_macro(r.micro.Kn, r.micro.Ks, r.micro.Xb, r.micro.Fs0, r.micro.mu_p, d)
+    for k in ("E", "nu", "Tu", "Cu", "mu_i"):
+        assert back[k] == pytest.approx(r.used[k], rel=1e-9, abs=1e-12)
+    for k in PROPERTY_NAMES:
+        if k not in r.clamped:
+            assert r.used[k] == r.target[k]
+    assert ("nu" in r.clamped) == (r.target["nu"] > 0.2)
+    assert len(r.warnings) == len(r.clamped)
+
+
+def _doc(name="granite"):
+    return yaml.safe_load((LIBRARY_DIR / f"{name}.yaml").read_text())
+
+
+def _write(tmp_path, doc, fname="bad.yaml"):
+    p = tmp_path / fname
+    p.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return p
+
+
+def test_clamping_recorded(tmp_path):
+    doc = _doc()
+    doc["name"] = "lowfric"
+    doc["properties"]["mu_i"]["value"] = 0.2
+    r = to_micro(load_material(_write(tmp_path, doc, "lowfric.yaml")), 0.02)
+    assert r.clamped == ("nu", "mu_i")
+    assert r.used["nu"] == 0.2 and r.used["mu_i"] == MU_I_MIN
+    assert r.target["nu"] == 0.25 and r.target["mu_i"] == 0.2
+    assert "nu = 0.25" in r.warnings[0] and "mu_i = 0.2" in r.warnings[1]
+    assert r.micro.mu_p == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("field,value,match", [
+    ("E", -1.0, r"properties\.E: value -1\.0 out of range; allowed: E > 0"),
+    ("rho", 0.0, r"properties\.rho: .* allowed: rho > 0"),
+    ("nu", 0.5, r"properties\.nu: .* allowed: -1 < nu < 0\.5"),
+    ("nu", -1.0, r"properties\.nu: .* allowed: -1 < nu < 0\.5"),
+    ("mu_i", 0.0, r"properties\.mu_i: .* allowed: mu_i = tan\(phi\) > 0"),
+    ("Tu", 3e8, r"properties: .*Tu = 3e\+08 Pa must be below Cu .*allowed: 0 < Tu < Cu"),
+    ("Cu", -5.0, r"properties\.Cu: .* allowed: Cu > 0"),
+])
+def test_errors_name_file_field_range(tmp_path, field, value, match):
+    doc = _doc()
+    doc["properties"][field]["value"] = value
+    p = _write(tmp_path, doc)
+    with pytest.raises(MaterialError, match=match) as ei:
+        load_material(p)
+    assert str(p) in str(ei.value)
+
+
+def test_other_errors(tmp_path):
+    doc = _doc()
+    doc["colour"] = "grey"
+    with pytest.raises(MaterialError, match=r"bad\.yaml: colour: unknown field"):
+        load_material(_write(tmp_path, doc))
+    doc = _doc()
+    del doc["properties"]["Tu"]["source"]
+    with pytest.raises(MaterialError, match=r"properties\.Tu\.source: Field required"):
+        load_material(_write(tmp_path, doc))
+    doc = _doc()
+    doc["properties"]["E"]["unit"] = "GPa"
+    with pytest.raises(MaterialError, match=r"E\.unit = 'GPa'; allowed: 'Pa'"):
+        load_material(_write(tmp_path, doc))
+    with pytest.raises(MaterialError, match=r"'basalt' not found .* available: .*granite"):
+        load_material("basalt")
+    with pytest.raises(MaterialError, match=r"nope\.yaml: material file not found"):
+        load_material(tmp_path / "nope.yaml")
+    (tmp_path / "list.yaml").write_text("- 1\n- 2\n")
+    with pytest.raises(MaterialError, match=r"list\.yaml: a material file holds a mapping"):
+        load_material(tmp_path / "list.yaml")
+    with pytest.raises(ValueError, match=r"d = 0"):
+        to_micro("granite", 0.0)
+
+
+def test_model_forbids_extra_in_nested():
+    doc = _doc()
+    bad = copy.deepcopy(doc)
+    bad["properties"]["E"]["source"]["doi"] = "x"
+    with pytest.raises(Exception, match="doi"):
+        Material.model_validate(bad)
+    assert Material.model_validate(doc).name == "granite"
