@@ -1,0 +1,221 @@
+"""Bonded specimens: cementing a packing and the whole chain packing -> cutting -> cementing.
+
+``cement(state, gap, element_params, ...)``
+    * element parameters from :func:`geodem.materials.macro_to_micro` (``Micro.element``, given
+      for the reference diameter ``d_ref``) scaled per element by ``s = d_i / d_ref``
+      (PHYSICS.md section 2, "Mixed sizes"): ``kn, ks, xb`` x ``s``, ``fs0`` x ``s^2``, ``mu``
+      unchanged; mass ``rho * volume`` (sphere, or disc of thickness ``d_i`` in 2-D unless
+      ``state.thickness`` is set);
+    * every pair with surface gap ``<= gap`` is bonded (:func:`contact_pairs` +
+      :func:`rows_from_pairs`), then the rows are completed with the unbonded neighbours within
+      the skin (:func:`build_rows`);
+    * gravity is switched off, every element freed, velocities and shear springs zeroed, time and
+      energy books restarted; standard balances (damping ``eta_c / N``, ``50 N`` steps, ``N`` =
+      elements across the largest extent) until the unbalanced-force ratio is below ``tol``.
+
+    The default ``gap`` is the smallest element ``xb``: a bond formed across a gap starts in
+    tension, and one formed across a gap larger than its breaking displacement would break at
+    once. The locked-in overlaps of the packing relax during the balance; a few bonds may break
+    then (reported).
+
+``make_specimen(shape, size, d_mean, distri_rate, material, dim, seed)``
+    deposit (:mod:`geodem.build.packing`) in a box 1.5 ``d_mean`` wider than the specimen on every
+    side and about 2 ``d_mean`` taller, compact with the platen, lift the platen and stiffen the
+    packing to the material's ``kn`` (:func:`packing.stiffen`: the locked-in overlaps shrink
+    below the bonds' breaking displacement), cut the shape (centres inside;
+    specimen bounding box starting at the origin), cement, Morton-sort
+    (:func:`spatial_sort`). Every element is in group ``"specimen"``; platens are for the caller.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from geodem.build import packing
+from geodem.build.lattice import contact_pairs
+from geodem.build.shapes import Box, Cylinder, Disc, subset_state
+from geodem.core import groups, neighbors, timestep
+from geodem.core.state import BONDED, State
+from geodem.materials import Micro, macro_to_micro
+
+__all__ = ["cement", "make_specimen", "DEFAULT_MATERIAL", "coordination", "specimen_shape"]
+
+DEFAULT_MATERIAL = {"E": 10e9, "nu": 0.15, "Tu": 5e6, "Cu": 50e6, "mu_i": 0.8, "rho": 2500.0}
+_ELEMENT_KEYS = ("kn", "ks", "xb", "fs0", "mu")
+
+
+def coordination(state: State) -> float:
+    """Mean number of intact bonds per element."""
+    return float((state.cstate == BONDED).sum()) / max(state.n, 1)
+
+
+def _assign(state, element_params, d_ref, rho):
+    if isinstance(element_params, Micro):
+        d_ref = element_params.d if d_ref is None else d_ref
+        if rho is None:
+            rho = element_params.mass * math.sqrt(2.0) / element_params.d ** 3
+        element_params = element_params.element
+    missing = [k for k in _ELEMENT_KEYS if k not in element_params]
+    if missing:
+        raise ValueError(f"element_params lacks {missing} (expected Micro.element keys)")
+    if d_ref is None or rho is None:
+        raise ValueError("give d_ref and rho (or a Micro from macro_to_micro)")
+    s = 2.0 * state.r / float(d_ref)
+    state.kn[:] = element_params["kn"] * s
+    state.ks[:] = element_params["ks"] * s
+    state.xb[:] = element_params["xb"] * s
+    state.fs0[:] = element_params["fs0"] * s * s
+    state.mu[:] = element_params["mu"]
+    if state.dim == 3:
+        vol = packing.element_volume(state.r, 3)
+    else:
+        t = state.thickness if state.thickness > 0 else 2.0 * state.r
+        vol = packing.element_volume(state.r, 2) * t
+    state.m[:] = float(rho) * vol
+
+
+def cement(state: State, gap=None, element_params=None, *, d_ref=None, rho=None, n_across=None,
+           tol=1e-3, max_rounds=20, backend=None, skin=None):
+    """Give ``state`` its material and bond every contact within ``gap``; balance (see module
+    docstring). Modifies ``state`` in place. Returns a report dict: ``n_elements``, ``bonds``
+    (intact after the balance), ``bonds_formed``, ``bonds_broken``, ``coordination`` (bonds per
+    element, 2 x bonds / n), ``interior_coordination`` (the same over the elements inside the
+    bounding box inset by one ``d_max``: free of the surface deficit), ``porosity`` (Monte-Carlo estimate inside the bounding box inset by
+    one ``d_max``), ``packing_fraction``, ``max_overlap`` (fraction of the smaller radius),
+    ``unbalanced_ratio``, ``steps``, ``dt``."""
+    from geodem.core.engine import Simulation
+
+    if element_params is None:
+        raise ValueError("element_params is required (macro_to_micro(...) or its .element)")
+    _assign(state, element_params, d_ref, rho)
+    if gap is None:
+        gap = float(state.xb.min())
+    st = state
+    st.gravity = np.zeros(st.dim)
+    st.free[:] = 1.0
+    st.v[:] = 0.0
+    st.a[:] = 0.0
+    st.fload[:] = 0.0
+    st.fs[:] = 0.0
+    for k in ("q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext"):
+        getattr(st, k)[:] = 0.0
+    st.step, st.time, st.dt = 0, 0.0, 0.0
+    d_mean = 2.0 * float(st.r.mean())
+    st.skin = 0.1 * d_mean if skin is None else float(skin)
+    i, j = contact_pairs(st.x, st.r, gap)
+    st.nbr[:] = -1
+    st.cstate[:] = 0
+    st.brate[:] = 1.0
+    out = neighbors.rows_from_pairs(st, i, j, bonded=True)
+    if isinstance(out, State):  # pragma: no cover - rows_from_pairs assigns in place
+        st = out
+    neighbors.build_rows(st)
+    formed = int((st.cstate == BONDED).sum() // 2)
+    if n_across is None:
+        ext = st.x.max(axis=0) - st.x.min(axis=0)
+        n_across = max(float(ext.max()) / d_mean, 1.0)
+    sim = Simulation(st, backend=backend, monitor_every=0)
+    ratio = math.inf
+    rounds = 0
+    for rounds in range(1, max_rounds + 1):
+        ratio = sim.balance(n_across)
+        if ratio < tol:
+            break
+    sim.sync()
+    from geodem.core.checks import max_overlap
+
+    bonds = sim.bonded_count()
+    lo, hi = st.x.min(axis=0), st.x.max(axis=0)
+    inset = 2.0 * float(st.r.max())
+    if np.all(hi - lo > 2.0 * inset + d_mean):
+        lo, hi = lo + inset, hi - inset
+    pf = packing.packing_fraction(st.x, st.r, lo, hi)
+    per = (st.cstate == BONDED).sum(axis=1)
+    inner = np.all((st.x > lo) & (st.x < hi), axis=1)
+    interior = float(per[inner].mean()) if inner.any() else float("nan")
+    return {"n_elements": int(st.n), "bonds": bonds, "bonds_formed": formed,
+            "bonds_broken": len(sim.crack_log()), "coordination": 2.0 * bonds / max(st.n, 1),
+            "interior_coordination": interior,
+            "porosity": 1.0 - pf, "packing_fraction": pf,
+            "max_overlap": float(max_overlap(st.x, st.r, st.nbr)[0]),
+            "unbalanced_ratio": float(ratio),
+            "steps": rounds * timestep.standard_balance_steps(n_across), "dt": st.dt,
+            "gap": gap}
+
+
+def specimen_shape(shape: str, size, dim: int, origin=0.0):
+    """The :mod:`geodem.build.shapes` object for ``shape`` with its bounding box starting at
+    ``origin``: box ``size = (Lx, Ly[, Lz])``; cylinder (3-D) ``(diameter, height)``; disc
+    ``(diameter,)`` in 2-D or ``(diameter, thickness)`` in 3-D (axis y)."""
+    size = [float(v) for v in np.atleast_1d(size)]
+    o = np.zeros(dim) + origin
+    if shape == "box":
+        if len(size) != dim:
+            raise ValueError(f"box size needs {dim} values, got {size}")
+        return Box(tuple(o), tuple(o + np.array(size)))
+    if shape == "cylinder":
+        if dim != 3 or len(size) != 2:
+            raise ValueError("cylinder: 3-D only, size = (diameter, height)")
+        R = 0.5 * size[0]
+        return Cylinder((o[0] + R, o[1] + R), R, o[2], o[2] + size[1])
+    if shape == "disc":
+        R = 0.5 * size[0]
+        if dim == 2:
+            if len(size) != 1:
+                raise ValueError("2-D disc: size = (diameter,)")
+            return Disc((o[0] + R, o[1] + R), R)
+        if len(size) != 2:
+            raise ValueError("3-D disc: size = (diameter, thickness)")
+        return Disc((o[0] + R, o[1] + 0.5 * size[1], o[2] + R), R, "y", size[1])
+    raise ValueError(f"shape must be 'box', 'cylinder' or 'disc', got {shape!r}")
+
+
+def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material=None, dim=3,
+                  seed=0, gap=None, backend=None, tol=1e-3):
+    """Pack, cut and cement a specimen. Returns ``(state, report)``; the report holds the
+    :func:`cement` keys plus ``packing`` (deposition/compaction summaries) and ``volume``
+    (shape volume, area in 2-D) and ``shape_packing_fraction`` (element volume / shape volume)."""
+    if dim not in (2, 3):
+        raise ValueError(f"dim must be 2 or 3, got {dim!r}")
+    mat = dict(DEFAULT_MATERIAL if material is None else material)
+    shp = specimen_shape(shape, size if size is not None else [10 * d_mean] * dim, dim)
+    blo, bhi = shp.bounds
+    ext = bhi - blo
+    margin = 1.5 * d_mean
+    box_lo = np.zeros(dim)
+    box_hi = np.append(ext[:-1] + 2 * margin, ext[-1] + 2 * margin + 1.0 * d_mean)
+    phi = 0.84 if dim == 2 else 0.63
+    x, r = packing.random_placement((box_lo, box_hi), porosity=1.0 - phi * 1.1, d_mean=d_mean,
+                                    distri_rate=distri_rate, seed=seed)
+    st = packing.deposition_state(x, r, (box_lo, box_hi), rho=mat["rho"])
+    dep = packing.deposit(st, backend=backend)
+    com = packing.compact(st, backend=backend)
+    micro = macro_to_micro(mat["E"], mat["nu"], mat["Tu"], mat["Cu"], mat["mu_i"], mat["rho"],
+                           d_mean)
+    s = groups.members(st, "sample")
+    factor = max(1.0, 2.0 * micro.Kn / float(st.kn[s].mean()))
+    stf = packing.stiffen(st, factor, backend=backend)
+    s = groups.members(st, "sample")
+    top = float(st.x[s, -1].max())
+    off = np.append(np.full(dim - 1, margin), margin)
+    if top < off[-1] + ext[-1] + 0.5 * d_mean:
+        raise RuntimeError(f"the packing ({top:.4g} m high) is too low for the specimen; "
+                           "report this with the arguments used")
+    keep = np.zeros(st.n, bool)
+    keep[s] = shp.mask(st.x[s] - off)
+    sp = subset_state(st, keep, rebuild=False)
+    sp.x -= off
+    sp.x_ref[:] = sp.x
+    sp.groups = {"all": 0}
+    sp.group[:] = 0
+    groups.add_group(sp, "specimen", np.arange(sp.n))
+    rep = cement(sp, gap, micro, rho=mat["rho"], backend=backend, tol=tol)
+    neighbors.spatial_sort(sp)
+    vol_el = float(packing.element_volume(sp.r, dim).sum())
+    rep.update({"volume": shp.volume, "shape_packing_fraction": vol_el / shp.volume,
+                "packing": {"deposit_steps": dep["steps"], "compact_steps": com["steps"],
+                            "stiffen_steps": stf["steps"], "stiffen_factor": factor,
+                            "compaction_pressure": com["pressure"],
+                            "n_deposited": int(s.size)}})
+    return sp, rep
