@@ -389,3 +389,4 @@ def _plot(path, crit, osc, labels):
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+from geodem.workflow import labtests  # noqa: E402,F401  (registers specimen, uniaxial)
