@@ -130,12 +130,7 @@ def _parse_backends(value: Optional[str]) -> Optional[list]:
     if not names:
         raise typer.BadParameter(f"{value!r} names no backend; give a comma-separated list of: "
                                  f"{', '.join(_allowed_backends())}")
-    allowed = _allowed_backends()
-    for name in names:
-        if name not in allowed:
-            raise typer.BadParameter(f"{name!r} is not a known backend; allowed: "
-                                     f"{', '.join(allowed)} (comma-separated)")
-    return names
+    return [_parse_backend(name) for name in names]
 
 
 def _parse_sizes(value: Optional[str]) -> Optional[list]:

@@ -11,12 +11,8 @@ import numpy as np
 
 from geodem.backends import register
 from geodem.backends.numba_backend import HostBackend
+from geodem.core.law import series_array
 from geodem.core.state import BONDED
-
-
-def _series(a, b):
-    s = a + b
-    return np.where(s > 0.0, a * b / np.where(s > 0.0, s, 1.0), 0.0)
 
 
 def _spring(f2, k):
@@ -60,8 +56,8 @@ class NumpyBackend(HostBackend):
         n = d * inv[..., None]
         rel = s.dx[j] - s.dx[:, None, :]
         xn = dist - (s.r[:, None] + s.r[j])
-        kn = _series(s.kn[:, None], s.kn[j])
-        ks = _series(s.ks[:, None], s.ks[j])
+        kn = series_array(s.kn[:, None], s.kn[j])
+        ks = series_array(s.ks[:, None], s.ks[j])
         mu = np.minimum(s.mu[:, None], s.mu[j])
         rate = s.brate.astype(np.float64)
 
@@ -94,7 +90,7 @@ class NumpyBackend(HostBackend):
             e_i = s.kn[:, None] / (np.pi * s.r[:, None])
             e_j = s.kn[j] / (np.pi * s.r[j])
             ov = np.where(comp, -xn, 0.0)
-            fn_u = -(4.0 / 3.0) * _series(e_i, e_j) * np.sqrt(_series(s.r[:, None], s.r[j])) \
+            fn_u = -(4.0 / 3.0) * series_array(e_i, e_j) * np.sqrt(series_array(s.r[:, None], s.r[j])) \
                 * ov * np.sqrt(ov)
         else:
             fn_u = kn * xn
@@ -139,8 +135,8 @@ class NumpyBackend(HostBackend):
         s = self.s
         valid, j, d, dist = self._geometry()
         xn = dist - (s.r[:, None] + s.r[j])
-        kn = _series(s.kn[:, None], s.kn[j])
-        ks = _series(s.ks[:, None], s.ks[j])
+        kn = series_array(s.kn[:, None], s.kn[j])
+        ks = series_array(s.ks[:, None], s.ks[j])
         e = _spring((s.fs * s.fs).sum(-1), ks)
         bonded = s.cstate == BONDED
         comp = ~bonded & (xn < 0.0)
@@ -148,7 +144,7 @@ class NumpyBackend(HostBackend):
             e_i = s.kn[:, None] / (np.pi * s.r[:, None])
             e_j = s.kn[j] / (np.pi * s.r[j])
             ov = np.where(comp, -xn, 0.0)
-            fh = (4.0 / 3.0) * _series(e_i, e_j) * np.sqrt(_series(s.r[:, None], s.r[j])) \
+            fh = (4.0 / 3.0) * series_array(e_i, e_j) * np.sqrt(series_array(s.r[:, None], s.r[j])) \
                 * ov * np.sqrt(ov)
             en = np.where(bonded, 0.5 * kn * xn * xn, np.where(comp, 0.4 * fh * ov, 0.0))
         else:

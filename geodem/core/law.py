@@ -56,6 +56,14 @@ def series(a, b):
     return 0.0
 
 
+def series_array(a, b):
+    """:func:`series` for NumPy arrays (whole-matrix code: reference backend, stability bound)."""
+    import numpy as np
+
+    s = a + b
+    return np.where(s > 0.0, a * b / np.where(s > 0.0, s, 1.0), 0.0)
+
+
 def spring_energy(f2, k):
     """Energy ``f^2/(2k)`` of a linear spring holding force squared ``f2``; 0 if ``k == 0`` [J]."""
     if k > 0.0:

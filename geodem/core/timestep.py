@@ -40,11 +40,12 @@ def default_dt(state, fraction: float = DEFAULT_FRACTION) -> float:
 
 def omega_max_bound(state) -> float:
     """Gershgorin upper bound of the highest angular frequency of the current rows [rad/s]."""
-    from geodem.backends.numpy_ref import _series
+    from geodem.core.law import series_array
 
     valid = state.nbr >= 0
     j = np.where(valid, state.nbr, 0)
-    k = np.maximum(_series(state.kn[:, None], state.kn[j]), _series(state.ks[:, None], state.ks[j]))
+    k = np.maximum(series_array(state.kn[:, None], state.kn[j]),
+                   series_array(state.ks[:, None], state.ks[j]))
     mi = state.m[:, None]
     row = np.where(valid, k * (1.0 / mi + 1.0 / np.sqrt(mi * state.m[j])), 0.0).sum(axis=1)
     movable = (state.free != 0).any(axis=1)

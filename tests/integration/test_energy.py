@@ -3,7 +3,9 @@ import numpy as np
 
 from geodem.build.lattice import bonded_state, fcc_lattice, triangular_lattice
 from geodem.cases import two_balls as tb
+from geodem.core import groups
 from geodem.core.engine import Simulation
+from geodem.core.timestep import element_critical_damping
 
 
 def period_mean_energy(sim, steps):
@@ -29,19 +31,23 @@ def test_no_damping_no_breakage_drift_over_1e5_steps():
     assert sim.crack_log().size == 0
 
 
+def platen_block(x, d, velocity, **params):
+    """A bonded block on a fixed base with a kinematic top row moving at ``velocity``."""
+    st = bonded_state(x, np.full(len(x), 0.5 * d), density=2650.0, gap=0.01 * d, **params)
+    st.eta[:] = 0.05 * element_critical_damping(st)
+    up = st.x[:, -1]
+    groups.add_group(st, "base", up < 0.1 * d)
+    groups.add_group(st, "top", up > up.max() - 0.1 * d)
+    groups.fix(st, "base")
+    groups.set_velocity(st, "top", velocity)
+    return st
+
+
 def test_closure_platen_compression_3d():
     """A 3-D lattice block crushed by a kinematic platen with damping: shear cracks, friction."""
     d = 0.01
-    x = fcc_lattice(8, 8, 10, d)
-    r = np.full(len(x), 0.5 * d)
-    st = bonded_state(x, r, density=2650.0, kn=1e7, ks=4e6, xb=2e-4 * d, fs0=3.0, mu=0.4,
-                      gap=0.01 * d)
-    st.eta[:] = 0.05 * 2 * np.sqrt(st.m * 0.5 * st.kn)
-    z = st.x[:, 2]
-    bottom, top = z < 0.1 * d, z > z.max() - 0.1 * d
-    st.free[bottom] = 0.0
-    st.free[top] = 0.0
-    st.v[top, 2] = -0.05
+    st = platen_block(fcc_lattice(8, 8, 10, d), d, [0.0, 0.0, -0.05], kn=1e7, ks=4e6,
+                      xb=2e-4 * d, fs0=3.0, mu=0.4)
     sim = Simulation(st, backend="numba")
     sim.run(2500)
     e = sim.energies()
@@ -54,17 +60,8 @@ def test_closure_platen_compression_3d():
 def test_closure_platen_pull_2d():
     """A triangular-lattice block pulled apart by a kinematic top row: work, cracks, friction."""
     d = 0.01
-    x = triangular_lattice(12, 14, d)
-    r = np.full(len(x), 0.5 * d)
-    st = bonded_state(x, r, density=2650.0, kn=1e7, ks=3e6, xb=1e-4 * d, fs0=0.5, mu=0.5,
-                      gap=0.01 * d)
-    st.eta[:] = 0.05 * 2 * np.sqrt(st.m * 0.5 * st.kn)
-    y = st.x[:, 1]
-    bottom, top = y < 0.1 * d, y > y.max() - 0.1 * d
-    st.free[bottom] = 0.0
-    st.free[top] = 0.0
-    st.v[top, 1] = 0.02
-    st.v[top, 0] = 0.01
+    st = platen_block(triangular_lattice(12, 14, d), d, [0.01, 0.02], kn=1e7, ks=3e6,
+                      xb=1e-4 * d, fs0=0.5, mu=0.5)
     sim = Simulation(st, backend="numba")
     sim.run(3000)
     e = sim.energies()
