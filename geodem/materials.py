@@ -73,3 +73,23 @@ def micro_to_macro(Kn, Ks, Xb, Fs0, mu_p, d) -> dict:
     mu_i = sphi / math.sqrt(1 - sphi * sphi)
     Cu = 6 * Fs0 / (d * d * (1 - SQ2 * mu_p))
     return {"E": E, "nu": nu, "Tu": Tu, "Cu": Cu, "mu_i": mu_i}
+
+
+PER_SIZE_KEYS = ("kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2", "mu")
+
+
+def per_size(element: dict, d: float) -> dict:
+    """Per-element parameters given for diameter ``d`` (``kn, ks, xb, fs0, mu``, e.g.
+    ``Micro.element``) as size-free values: ``kn_per_d = kn / d``, ``ks_per_d = ks / d``,
+    ``xb_per_d = xb / d``, ``fs0_per_d2 = fs0 / d^2``, ``mu`` (PHYSICS.md section 2, mixed
+    sizes: ``kn, ks, xb ∝ d``, ``fs0 ∝ d^2``)."""
+    return {"kn_per_d": element["kn"] / d, "ks_per_d": element["ks"] / d,
+            "xb_per_d": element["xb"] / d, "fs0_per_d2": element["fs0"] / d ** 2,
+            "mu": element["mu"]}
+
+
+def at_size(scaled: dict, d: float) -> dict:
+    """Inverse of :func:`per_size`: ``kn, ks, xb, fs0, mu`` of an element of diameter ``d``."""
+    return {"kn": scaled["kn_per_d"] * d, "ks": scaled["ks_per_d"] * d,
+            "xb": scaled["xb_per_d"] * d, "fs0": scaled["fs0_per_d2"] * d ** 2,
+            "mu": scaled["mu"]}

@@ -37,7 +37,7 @@ from geodem.build.lattice import contact_pairs
 from geodem.build.shapes import Box, Cylinder, Disc, subset_state
 from geodem.core import groups, neighbors, timestep
 from geodem.core.state import BONDED, State
-from geodem.materials import Micro, macro_to_micro
+from geodem.materials import Micro, at_size, macro_to_micro
 
 __all__ = ["cement", "make_specimen", "DEFAULT_MATERIAL", "coordination", "specimen_shape"]
 
@@ -172,8 +172,11 @@ def specimen_shape(shape: str, size, dim: int, origin=0.0):
 
 
 def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material=None, dim=3,
-                  seed=0, gap=None, backend=None, tol=1e-3):
-    """Pack, cut and cement a specimen. Returns ``(state, report)``; the report holds the
+                  seed=0, gap=None, backend=None, tol=1e-3, element=None):
+    """Pack, cut and cement a specimen. ``material``: rock properties (``E, nu, Tu, Cu, mu_i,
+    rho``) converted by ``macro_to_micro`` at ``d_mean``; or, with ``element`` (size-free
+    element parameters, :func:`geodem.materials.per_size` keys, e.g. calibrated ones), only
+    ``rho`` is read from ``material``. Returns ``(state, report)``; the report holds the
     :func:`cement` keys plus ``packing`` (deposition/compaction summaries) and ``volume``
     (shape volume, area in 2-D) and ``shape_packing_fraction`` (element volume / shape volume)."""
     if dim not in (2, 3):
@@ -191,10 +194,14 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
     st = packing.deposition_state(x, r, (box_lo, box_hi), rho=mat["rho"])
     dep = packing.deposit(st, backend=backend)
     com = packing.compact(st, backend=backend)
-    micro = macro_to_micro(mat["E"], mat["nu"], mat["Tu"], mat["Cu"], mat["mu_i"], mat["rho"],
-                           d_mean)
+    if element is None:
+        micro = macro_to_micro(mat["E"], mat["nu"], mat["Tu"], mat["Cu"], mat["mu_i"],
+                               mat["rho"], d_mean)
+        params = micro.element
+    else:
+        params = at_size(element, d_mean)
     s = groups.members(st, "sample")
-    factor = max(1.0, 2.0 * micro.Kn / float(st.kn[s].mean()))
+    factor = max(1.0, params["kn"] / float(st.kn[s].mean()))
     stf = packing.stiffen(st, factor, backend=backend)
     s = groups.members(st, "sample")
     top = float(st.x[s, -1].max())
@@ -210,7 +217,7 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
     sp.groups = {"all": 0}
     sp.group[:] = 0
     groups.add_group(sp, "specimen", np.arange(sp.n))
-    rep = cement(sp, gap, micro, rho=mat["rho"], backend=backend, tol=tol)
+    rep = cement(sp, gap, params, d_ref=d_mean, rho=mat["rho"], backend=backend, tol=tol)
     neighbors.spatial_sort(sp)
     vol_el = float(packing.element_volume(sp.r, dim).sum())
     rep.update({"volume": shp.volume, "shape_packing_fraction": vol_el / shp.volume,

@@ -50,6 +50,76 @@ COLUMNS = ("step", "time", "axial_strain", "axial_stress", "lateral_strain", "cr
            "cracks_shear", "cracks_total")
 
 
+# ============================================================================ materials
+class SpecimenMaterial:
+    """What a specimen builder needs from a material: ``rho``, and either ``macro`` (rock
+    properties for ``macro_to_micro``) or ``element`` (size-free element parameters,
+    :func:`geodem.materials.per_size` keys); ``label`` says which, ``warnings`` what was
+    clamped."""
+
+    def __init__(self, rho, macro=None, element=None, label="", warnings=()):
+        self.rho, self.macro, self.element = float(rho), macro, element
+        self.label, self.warnings = label, tuple(warnings)
+
+    @property
+    def material(self) -> dict:
+        """The ``material`` argument of :func:`geodem.build.specimen.make_specimen`."""
+        return dict(self.macro) if self.macro else {"rho": self.rho}
+
+
+def specimen_material(cfg, name: str, dim: int) -> SpecimenMaterial:
+    """Resolve ``cfg.materials[name]`` for a bonded specimen of dimension ``dim``.
+
+    * rock properties (``E, nu, ...``): lattice conversion (nu < 0.2 needed: at 0.2 the
+      shear springs vanish and a random packing is a mechanism);
+    * per-size element parameters (``kn_per_d, ...``, e.g. from ``geodem calibrate``);
+    * ``{library: NAME}``: the library file's calibration for ``dim`` (``use: auto`` or
+      ``calibrated``), else its laboratory values on the lattice (clamped, with warnings).
+
+    Raises ``ValueError`` with the reason (the callers turn it into a field error)."""
+    from geodem.materials_library import load_material, to_micro
+    from geodem.workflow.schema import LibraryMaterial, ScaledMicroMaterial
+
+    m = cfg.materials[name]
+    if isinstance(m, MacroMaterial):
+        if m.nu >= 0.2:
+            raise ValueError(f"material {name!r} has nu = {m.nu:g}: macro_to_micro then gives "
+                             "ks = 0, and a random packing without shear springs is a mechanism "
+                             "(it never balances); allowed for a specimen: nu < 0.2, or "
+                             "calibrated parameters")
+        macro = {k: getattr(m, k) for k in ("E", "nu", "Tu", "Cu", "mu_i", "rho")}
+        return SpecimenMaterial(m.rho, macro=macro, label="lattice conversion")
+    if isinstance(m, ScaledMicroMaterial):
+        if m.dim is not None and m.dim != dim:
+            raise ValueError(f"material {name!r} was calibrated in {m.dim}-D; the model is "
+                             f"{dim}-D (calibrate it for dim = {dim})")
+        el = {k: getattr(m, k) for k in ("kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2", "mu")}
+        return SpecimenMaterial(m.rho, element=el, label="per-size element parameters")
+    if isinstance(m, LibraryMaterial):
+        try:
+            lib = load_material(m.library)
+        except Exception as exc:  # noqa: BLE001 - MaterialError / FileNotFoundError: reported
+            raise ValueError(str(exc)) from None
+        cal = (lib.calibrated or {}).get(f"{dim}d") if m.use != "lattice" else None
+        if cal is not None:
+            return SpecimenMaterial(lib.values()["rho"], element=dict(cal["element"]),
+                                    label=f"{lib.name}: calibrated ({dim}-D)")
+        if m.use == "calibrated":
+            raise ValueError(f"library material {lib.name!r} has no {dim}-D calibration; run "
+                             f"'geodem calibrate {m.library} --dim {dim}' or set use: lattice")
+        conv = to_micro(lib, 1.0)
+        macro = dict(conv.used)
+        warns = list(conv.warnings)
+        if macro["nu"] >= 0.2:
+            macro["nu"] = 0.19
+            warns.append(f"{lib.name}: a random packing needs nu < 0.2 in the lattice conversion; "
+                         "converted with nu = 0.19")
+        return SpecimenMaterial(macro["rho"], macro=macro, label=f"{lib.name}: lattice conversion",
+                                warnings=warns)
+    raise ValueError(f"material {name!r} must give rock properties (E, nu, Tu, Cu, mu_i, rho), "
+                     "per-size element parameters or {library: NAME}")
+
+
 # ============================================================================ specimen
 @register_model("specimen")
 class Specimen(ModelBase):
@@ -100,27 +170,22 @@ class Specimen(ModelBase):
         elif min(self.size) < 4 * self.d_mean:
             out.append((("size",), f"the specimen must be at least 4 d_mean = "
                                    f"{4 * self.d_mean:g} m across"))
-        mat = cfg.materials.get(self.material)
-        if mat is not None and not isinstance(mat, MacroMaterial):
-            out.append((("material",), f"material {self.material!r} must give rock properties "
-                                       "(E, nu, Tu, Cu, mu_i, rho)"))
-        elif mat is not None and mat.nu >= 0.2:
-            out.append((("material",), f"material {self.material!r} has nu = {mat.nu:g}: "
-                                       "macro_to_micro then gives ks = 0, and a random packing "
-                                       "without shear springs is a mechanism (it never "
-                                       "balances); allowed for a specimen: nu < 0.2"))
+        if self.material in cfg.materials:
+            try:
+                specimen_material(cfg, self.material, self.dim)
+            except ValueError as exc:
+                out.append((("material",), str(exc)))
         return out
 
     def build(self, cfg):
         from geodem.build.specimen import make_specimen
         from geodem.core import groups as grp
 
-        m = cfg.materials[self.material]
-        mat = {k: getattr(m, k) for k in ("E", "nu", "Tu", "Cu", "mu_i", "rho")}
+        sm = specimen_material(cfg, self.material, self.dim)
         seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
         try:
-            st, rep = make_specimen(self.shape, self.size, self.d_mean, self.distri_rate, mat,
-                                    self.dim, seed)
+            st, rep = make_specimen(self.shape, self.size, self.d_mean, self.distri_rate,
+                                    sm.material, self.dim, seed, element=sm.element)
         except ValueError as exc:
             raise BuildError(("size",), str(exc)) from None
         ax = self.dim - 1
@@ -128,7 +193,8 @@ class Specimen(ModelBase):
         depth = self.platen_depth * self.d_mean
         grp.add_group(st, "bottom", st.x[:, ax] <= lo + depth)
         grp.add_group(st, "top", st.x[:, ax] >= hi - depth)
-        info = {"diameter": self.d_mean, "size": list(self.size),
+        info = {"diameter": self.d_mean, "size": list(self.size), "material": sm.label,
+                "material_warnings": list(sm.warnings),
                 "specimen_report": {k: v for k, v in rep.items() if k != "packing"}}
         return BuiltModel(st, st.x.copy(), self.n_across(), info)
 

@@ -23,6 +23,7 @@ from geodem.workflow.schema import (
     F,
     Int,
     MacroMaterial,
+    MicroMaterial,
     ModelBase,
     Name,
     Strict,
@@ -78,6 +79,19 @@ def element_params(cfg, name: str, d: float, dim: int, path=("material",)) -> di
             raise BuildError(where, str(exc)) from None
         el = mic.element
         return dict(el, rho=mat.rho, mass=mic.mass)
+    if not isinstance(mat, MicroMaterial):
+        from geodem.materials import at_size
+        from geodem.workflow.labtests import specimen_material
+
+        try:
+            sm = specimen_material(cfg, name, dim)
+        except ValueError as exc:
+            raise BuildError(("materials", name), str(exc)) from None
+        if sm.element is None:
+            raise BuildError(path, f"material {name!r} has no calibrated {dim}-D element "
+                                   "parameters; a lattice model needs element parameters "
+                                   "(or rock properties in 3-D)")
+        return dict(at_size(sm.element, d), rho=sm.rho, mass=None)
     xb = mat.xb if mat.xb is not None else 1.0e6 * d
     fs0 = mat.fs0 if mat.fs0 is not None else 1.0e12
     return dict(kn=mat.kn, ks=mat.ks, xb=xb, fs0=fs0, mu=mat.mu, rho=mat.rho, mass=None)

@@ -206,6 +206,37 @@ class MicroMaterial(_MaterialInfo):
     mu: float = F(0.5, ge=0, description="Element friction coefficient")
 
 
+class ScaledMicroMaterial(_MaterialInfo):
+    """Element parameters per element size (what ``geodem calibrate`` writes): an element of
+    diameter d gets ``kn = kn_per_d d``, ``ks = ks_per_d d``, ``xb = xb_per_d d``,
+    ``fs0 = fs0_per_d2 d^2`` and ``mu`` (PHYSICS.md section 2, mixed sizes), so the same
+    values serve every resolution."""
+
+    __tag__: ClassVar[str] = "scaled"
+    rho: float = F(..., unit="kg/m^3", gt=0, description="Density")
+    kn_per_d: float = F(..., unit="Pa", gt=0, description="Element normal stiffness / diameter")
+    ks_per_d: float = F(..., unit="Pa", ge=0, description="Element shear stiffness / diameter")
+    xb_per_d: float = F(..., ge=0, description="Element breaking displacement / diameter")
+    fs0_per_d2: float = F(..., unit="Pa", ge=0,
+                          description="Element initial shear resistance / diameter^2")
+    mu: float = F(..., ge=0, description="Element friction coefficient")
+    dim: Optional[Literal[2, 3]] = F(None, description="Dimension the values were calibrated "
+                                                      "for (checked against the model)")
+
+
+class LibraryMaterial(Strict):
+    """A material of the library (``materials/NAME.yaml`` or a path): its calibrated element
+    parameters for the model's dimension when the file has them (``use: auto`` or
+    ``calibrated``), otherwise its laboratory values converted on the close-packed lattice
+    (``use: lattice``; nu above 0.2 and mu_i below 0.354 are clamped with a warning)."""
+
+    __tag__: ClassVar[str] = "library"
+    library: str = F(..., min_length=1, description="Library material name or file path")
+    use: Literal["auto", "calibrated", "lattice"] = F(
+        "auto", description="calibrated parameters (auto: when present) or the lattice "
+                            "conversion")
+
+
 class MaterialFile(Strict):
     """A material kept in its own YAML file (path relative to the workflow file)."""
 
@@ -220,6 +251,10 @@ def _material_tag(v):
     if isinstance(v, dict):
         if "file" in v:
             return "file"
+        if "library" in v:
+            return "library"
+        if "kn_per_d" in v:
+            return "scaled"
         return "macro" if any(k in v for k in MACRO_KEYS) else "micro"
     if isinstance(v, BaseModel):
         return type(v).__tag__
@@ -228,11 +263,14 @@ def _material_tag(v):
 
 Material = Annotated[
     Union[Annotated[MacroMaterial, Tag("macro")], Annotated[MicroMaterial, Tag("micro")],
-          Annotated[MaterialFile, Tag("file")]],
+          Annotated[MaterialFile, Tag("file")], Annotated[ScaledMicroMaterial, Tag("scaled")],
+          Annotated[LibraryMaterial, Tag("library")]],
     Discriminator(_material_tag, custom_error_type="material",
                   custom_error_message="a material is a mapping: rock properties (E, nu, Tu, "
                                        "Cu, mu_i, rho), element parameters (rho, kn, ks, xb, "
-                                       "fs0, mu) or {file: PATH}"),
+                                       "fs0, mu), per-size element parameters (rho, kn_per_d, ks_per_d, "
+                                       "xb_per_d, fs0_per_d2, mu), {library: NAME} or "
+                                       "{file: PATH}"),
 ]
 
 
