@@ -390,3 +390,5 @@ def _plot(path, crit, osc, labels):
     plt.close(fig)
     return path
 from geodem.workflow import labtests  # noqa: E402,F401  (registers specimen, uniaxial)
+from geodem.workflow import brazilian  # noqa: E402,F401  (registers brazilian_disc, brazilian, direct_tension)
+from geodem.workflow import triaxial  # noqa: E402,F401  (registers triaxial_box, triaxial)
