@@ -60,9 +60,10 @@ def _err() -> Console:
 def _user_error_types():
     from geodem.backends import BackendError
     from geodem.bench import BenchError
+    from geodem.materials_library import MaterialError
     from geodem.workflow.errors import WorkflowError
 
-    return (BackendError, BenchError, WorkflowError)
+    return (BackendError, BenchError, WorkflowError, MaterialError)
 
 
 def _fail(msg: str, code: int) -> None:
@@ -490,6 +491,80 @@ def _print_run_summary(con, s: dict, out: str) -> None:
     if s.get("vtk", "").startswith("skipped"):
         con.print(f"vtk: {escape(s['vtk'])}", highlight=False)
     con.print(f"wrote {escape(', '.join(s.get('files', [])))} to {escape(out)}", highlight=False)
+
+
+@app.command("calibrate", help=(
+    "Calibrate a library material: find element parameters whose virtual UCS and Brazilian "
+    "tests give its E, nu, UCS (Cu) and tensile strength (Tu).\n\n"
+    "Each iteration builds the same specimens, runs the two lab workflows (kept under "
+    "DIR/iterations/NN/) and takes a Newton step with the model's exact scalings. Writes "
+    "summary.json (targets, measured, rel_errors, iterations, wall_time_s), history.csv, "
+    "calibrated.yaml and convergence.png into -o DIR; --save also stores the result in the "
+    "material file's 'calibrated' block.\n\n"
+    "Exit status: 0 converged (or the unreachable targets reported), 1 not converged or a run "
+    "failed, 2 invalid input."))
+@_guard
+def calibrate_cmd(
+    material: Annotated[str, typer.Argument(
+        metavar="MATERIAL", help="Library name (e.g. granite) or path of a material file.")],
+    out: Annotated[str, typer.Option("-o", "--out", help="Output directory (created).")],
+    dim: Annotated[int, typer.Option("--dim", min=2, max=3, help="Dimension of the "
+                                                                 "specimens.")] = 2,
+    iterations: Annotated[int, typer.Option("--iterations", min=1, max=20,
+                                            help="Largest number of iterations.")] = 6,
+    d_mean: Annotated[float, typer.Option("--d-mean", min=1e-6, help="Element diameter of the "
+                                                                      "specimens [m].")] = 0.005,
+    seed: Annotated[int, typer.Option("--seed", help="Packing seed.")] = 0,
+    save: Annotated[bool, typer.Option("--save", help="Write the result into the material "
+                                                      "file's 'calibrated' block.")] = False,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
+                                                                "existing -o DIR.")] = False,
+    backend: Annotated[Optional[str], typer.Option(
+        "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
+):
+    from pathlib import Path
+
+    from geodem.labtests.calibrate import CalibrationSpec, calibrate, save_calibration
+    from geodem.materials_library import load_material, material_path
+
+    mat = load_material(material)
+    path = material_path(material)
+    o = Path(out)
+    if o.exists() and any(o.iterdir()) and not overwrite:
+        _fail(f"{out} exists and is not empty; choose another -o or add --overwrite",
+              USER_ERROR)
+    if dim == 3:
+        size = (0.1, 0.1, 0.2)
+    else:
+        size = (0.1, 0.2)
+    if min(size) < 4 * d_mean:
+        _fail(f"--d-mean {d_mean:g} m: allowed up to {min(size) / 4:g} m (the specimens are "
+              f"{min(size):g} m across and need at least 4 elements)", USER_ERROR)
+    spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim, d_mean=d_mean,
+                           ucs_size=size, seed=seed, iterations=iterations,
+                           backend=backend)
+    con = _out()
+    con.print(f"calibrating {mat.name} ({dim}-D specimens, d = {d_mean:g} m) -> {out}",
+              highlight=False)
+
+    def report(i, rec):
+        m, e = rec["measured"], rec["rel_errors"]
+        con.print(f"iteration {i}: E {m['E']:.4g} Pa ({e['E']:+.1%}), nu {m['nu']:.3f} "
+                  f"({rec['nu_abs_error']:+.3f}), Cu {m['Cu']:.4g} Pa ({e['Cu']:+.1%}), "
+                  f"Tu {m['Tu']:.4g} Pa ({e['Tu']:+.1%}); {rec['wall_time_s']:.0f} s",
+                  highlight=False)
+
+    summary = calibrate(spec, o, progress=report)
+    con.print(f"best iteration {summary['best_iteration']} of {summary['iterations']}; "
+              f"{'converged' if summary['converged'] else 'NOT converged'}; wall time "
+              f"{summary['wall_time_s']:.0f} s", highlight=False)
+    for note in summary["notes"]:
+        con.print(f"note: {note}", highlight=False)
+    if save:
+        save_calibration(path, summary)
+        con.print(f"saved the {dim}-D calibration into {path}", highlight=False)
+    if not summary["converged"]:
+        raise typer.Exit(FAILURE)
 
 
 @app.command("validate", help=(

@@ -175,6 +175,11 @@ def _format_errors(path: Path, err: ValidationError) -> str:
     return "invalid material file\n  " + "\n  ".join(lines)
 
 
+def material_path(name_or_path: str | Path) -> Path:
+    """The file of a library material (name) or a material file (path)."""
+    return _resolve(name_or_path)
+
+
 def load_material(name_or_path: str | Path) -> Material:
     """Load and validate a material by library name (``"granite"`` -> ``materials/granite.yaml``)
     or by path. Raises :class:`MaterialError` naming the file, the field and the allowed range."""

@@ -23,8 +23,11 @@ Packing recipe (2-D and 3-D; gravity along the last axis, ``-y`` in 2-D, ``-z`` 
        kinematically until its reaction reaches ``pressure`` [Pa] (default: half the deposit's
        weight per unit area) or it reaches ``height``; it is then held and the packing balanced.
     5. :func:`stiffen`: platen lifted, stiffness raised to the real material's, balanced: the
-       overlaps locked into the packing shrink below the bonds' breaking displacement before
-       :func:`geodem.build.specimen.cement`.
+       overlaps locked into the packing shrink.
+    6. :func:`relax`: gravity off, balanced until the largest overlap is a small fraction of the
+       bonds' breaking displacement: the packing keeps its contacts (jammed, coordination about
+       3.6 in 2-D) but holds almost no force, so bonds cemented now start stress-free and none
+       break when the walls go (:func:`geodem.build.specimen.cement`).
 """
 from __future__ import annotations
 
@@ -36,7 +39,7 @@ from geodem.core import groups, timestep
 from geodem.core.state import new_state
 
 __all__ = ["radii", "diameter_bounds", "random_placement", "deposition_state", "deposit",
-           "compact", "packing_fraction", "element_volume"]
+           "compact", "stiffen", "relax", "packing_fraction", "element_volume"]
 
 PACK_DT_FRACTION = 0.04
 GRAVITY_OVERLAP = 2e-4  # weight of one element / kn: fraction of d_mean
@@ -355,6 +358,46 @@ def compact(st, *, pressure=None, height=None, speed=None, tol=1e-2, max_steps=4
     return {"steps": steps, "pressure": reached, "target_pressure": pressure,
             "height": float((st.x[p, -1] - st.r[p]).min()), "unbalanced_ratio": ratio,
             "sim": sim}
+
+
+def sample_overlap(st) -> float:
+    """Largest overlap [m] between two ``"sample"`` elements (0 when none touch)."""
+    s = groups.members(st, "sample")
+    ins = np.zeros(st.n, bool)
+    ins[s] = True
+    i = np.repeat(np.arange(st.n), st.width)
+    j = st.nbr.ravel()
+    m = (j >= 0) & ins[i] & ins[np.maximum(j, 0)]
+    i, j = i[m], j[m]
+    gap = np.linalg.norm(st.x[j] - st.x[i], axis=1) - st.r[i] - st.r[j]
+    return float(max(0.0, -gap.min())) if gap.size else 0.0
+
+
+def relax(st, overlap, *, max_rounds=30, sim=None, backend=None):
+    """Switch gravity off and balance (platen lifted, walls kept) until the largest overlap
+    between sample elements is below ``overlap`` [m]. Returns ``steps``, ``rounds``,
+    ``max_overlap`` [m], ``unbalanced_ratio``."""
+    from geodem.core import neighbors
+
+    if not (math.isfinite(overlap) and overlap > 0):
+        raise ValueError(f"overlap must be finite and > 0 [m], got {overlap!r}")
+    if "platen" in st.groups:
+        groups.fix(st, "platen")
+    if sim is None:
+        neighbors.build_rows(st)
+        sim = _simulation(st, backend)
+    sim.change(lambda z: z.gravity.__setitem__(slice(None), 0.0), book_energy=False)
+    n = _n_across(st)
+    steps = rounds = 0
+    ratio = math.inf
+    worst = sample_overlap(st)
+    while worst > overlap and rounds < max_rounds:
+        ratio = sim.balance(n)
+        steps += timestep.standard_balance_steps(n)
+        rounds += 1
+        sim.sync()
+        worst = sample_overlap(st)
+    return {"steps": steps, "rounds": rounds, "max_overlap": worst, "unbalanced_ratio": ratio}
 
 
 def packing_fraction(x, r, lo, hi, n_samples=20000, seed=0):

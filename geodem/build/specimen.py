@@ -43,6 +43,8 @@ __all__ = ["cement", "make_specimen", "DEFAULT_MATERIAL", "coordination", "speci
 
 DEFAULT_MATERIAL = {"E": 10e9, "nu": 0.15, "Tu": 5e6, "Cu": 50e6, "mu_i": 0.8, "rho": 2500.0}
 _ELEMENT_KEYS = ("kn", "ks", "xb", "fs0", "mu")
+RELAX_OVERLAP = 0.1  # locked-in overlaps relaxed below this fraction of the smallest xb
+CEMENT_GAP = 0.1  # make_specimen bonds pairs with gaps up to this fraction of the smallest xb
 
 
 def coordination(state: State) -> float:
@@ -203,6 +205,8 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
     s = groups.members(st, "sample")
     factor = max(1.0, params["kn"] / float(st.kn[s].mean()))
     stf = packing.stiffen(st, factor, backend=backend)
+    xb_min = float(params["xb"]) * float(st.r[groups.members(st, "sample")].min()) * 2 / d_mean
+    rel = packing.relax(st, RELAX_OVERLAP * xb_min, sim=stf["sim"])
     s = groups.members(st, "sample")
     top = float(st.x[s, -1].max())
     off = np.append(np.full(dim - 1, margin), margin)
@@ -217,12 +221,16 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
     sp.groups = {"all": 0}
     sp.group[:] = 0
     groups.add_group(sp, "specimen", np.arange(sp.n))
+    if gap is None:
+        gap = CEMENT_GAP * xb_min
     rep = cement(sp, gap, params, d_ref=d_mean, rho=mat["rho"], backend=backend, tol=tol)
     neighbors.spatial_sort(sp)
     vol_el = float(packing.element_volume(sp.r, dim).sum())
     rep.update({"volume": shp.volume, "shape_packing_fraction": vol_el / shp.volume,
                 "packing": {"deposit_steps": dep["steps"], "compact_steps": com["steps"],
                             "stiffen_steps": stf["steps"], "stiffen_factor": factor,
+                            "relax_steps": rel["steps"],
+                            "relax_max_overlap_over_xb": rel["max_overlap"] / xb_min,
                             "compaction_pressure": com["pressure"],
                             "n_deposited": int(s.size)}})
     return sp, rep

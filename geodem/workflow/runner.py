@@ -573,7 +573,9 @@ class Runner:
                 self.h5.flush()
                 self._last_flush = now
             ck = cfg.checkpoints
-            stop = self.stop_after is not None and s >= self.stop_after
+            # a stop landing exactly on this advance's target is left to the next advance (its
+            # first check): the step records its sample at the target before the checkpoint
+            stop = self.stop_after is not None and s >= self.stop_after and s < target
             if stop or (ck.every_steps and s % ck.every_steps == 0) or \
                     (ck.every_seconds and now - self._last_ckpt > ck.every_seconds):
                 self.checkpoint(ctx)

@@ -1,0 +1,90 @@
+"""Calibration solver on a synthetic packing response with the bonded model's exact scalings
+(E ∝ kn at fixed ks/kn, strengths ∝ breaking forces) and unknown nonlinear shape functions."""
+import json
+import math
+
+import pytest
+
+from geodem.labtests import calibrate as C
+
+TARGETS = {"E": 15e9, "nu": 0.2, "Tu": 4e6, "Cu": 75e6, "mu_i": 0.9, "rho": 2400.0}
+
+
+def synthetic(spec, el, folder):
+    """A made-up packing: the homogeneities are exact, the shapes in s and rho_s are not known
+    to the solver (its prior slopes are off by design)."""
+    s = el["ks_per_d"] / el["kn_per_d"]
+    ft = el["kn_per_d"] * el["xb_per_d"]
+    rho = el["fs0_per_d2"] / ft
+    return {"E": el["kn_per_d"] * 0.3 * (1 + 0.8 * s) / (1 + 0.1 * s),
+            "nu": 0.45 - 0.5 * s + 0.1 * s * s,
+            "Tu": ft * 0.5 * rho ** 0.1 * (1 + 0.1 * s),
+            "Cu": ft * 3.0 * rho ** 0.55 * (1 + 0.2 * s),
+            "wall_time_s": 0.0}
+
+
+def spec(**kw):
+    return C.CalibrationSpec(targets=dict(TARGETS, **kw), name="synthetic")
+
+
+def test_unknowns_round_trip():
+    el = C.prior_guess(spec())
+    back = C.from_unknowns(C.to_unknowns(el), el["mu"])
+    for k in el:
+        assert back[k] == pytest.approx(el[k], rel=1e-12)
+
+
+def test_converges_on_a_synthetic_packing_within_six_iterations(tmp_path):
+    out = C.calibrate(spec(), tmp_path, measure_fn=synthetic)
+    assert out["converged"] and out["iterations"] <= 6
+    for k in ("E", "Cu", "Tu"):
+        assert abs(out["rel_errors"][k]) <= 0.05
+    assert abs(out["abs_errors"]["nu"]) <= 0.03
+    # the result reproduces the targets when measured again
+    again = synthetic(None, out["element"], None)
+    assert again["E"] == pytest.approx(TARGETS["E"], rel=0.05)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert set(summary["rel_errors"]) == {"E", "nu", "Cu", "Tu"}
+    assert {"targets", "measured", "iterations", "wall_time_s"} <= set(summary)
+    assert (tmp_path / "history.csv").read_text().count("\n") == out["iterations"] + 1
+    assert "2d" in (tmp_path / "calibrated.yaml").read_text()
+
+
+def test_unreachable_poisson_ratio_is_reported(tmp_path):
+    # nu(s) <= 0.45 on this packing (s >= 0): 0.6 cannot be reached
+    out = C.calibrate(spec(nu=0.6), tmp_path, measure_fn=synthetic)
+    assert out["reachable"]["nu"] is False
+    assert any("nu = 0.6" in n for n in out["notes"])
+    for k in ("E", "Cu", "Tu"):  # the other three still match
+        assert abs(out["rel_errors"][k]) <= 0.05
+
+
+def test_bad_spec_is_refused():
+    with pytest.raises(ValueError, match="dim"):
+        C.CalibrationSpec(targets=TARGETS, dim=4)
+    with pytest.raises(ValueError, match="iterations"):
+        C.CalibrationSpec(targets=TARGETS, iterations=0)
+
+
+def test_unreachable_strength_ratio_is_reported(tmp_path):
+    # Cu / Tu <= about 40 on this packing (rho_s <= 50); 100 cannot be reached
+    out = C.calibrate(spec(Cu=400e6), tmp_path, measure_fn=synthetic)
+    assert out["reachable"]["Cu"] is False
+    assert any("Cu / Tu" in n for n in out["notes"])
+    assert abs(out["rel_errors"]["E"]) <= 0.05 and abs(out["abs_errors"]["nu"]) <= 0.03
+
+
+def test_save_calibration_keeps_the_file_and_loads_back(tmp_path):
+    from geodem.materials_library import LIBRARY_DIR, load_material
+
+    src = (LIBRARY_DIR / "sandstone.yaml").read_text()
+    p = tmp_path / "sandstone.yaml"
+    p.write_text(src)
+    out = C.calibrate(spec(), tmp_path / "cal", measure_fn=synthetic)
+    C.save_calibration(p, out)
+    C.save_calibration(p, dict(out, dim=3))  # a second dimension is added, not replacing
+    text = p.read_text()
+    assert text.startswith(src.split("calibrated:")[0])  # comments and sources untouched
+    mat = load_material(p)
+    assert set(mat.calibrated) == {"2d", "3d"}
+    assert mat.calibrated["2d"]["element"]["kn_per_d"] == pytest.approx(out["element"]["kn_per_d"])
