@@ -515,6 +515,9 @@ def calibrate_cmd(
     d_mean: Annotated[float, typer.Option("--d-mean", min=1e-6, help="Element diameter of the "
                                                                       "specimens [m].")] = 0.005,
     seed: Annotated[int, typer.Option("--seed", help="Packing seed.")] = 0,
+    prefer: Annotated[str, typer.Option("--prefer", help="Strength matched when the packing "
+                                                         "cannot reach Cu / Tu: Cu or Tu.")] =
+    "Cu",
     save: Annotated[bool, typer.Option("--save", help="Write the result into the material "
                                                       "file's 'calibrated' block.")] = False,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
@@ -542,7 +545,7 @@ def calibrate_cmd(
               f"{min(size):g} m across and need at least 4 elements)", USER_ERROR)
     spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim, d_mean=d_mean,
                            ucs_size=size, seed=seed, iterations=iterations,
-                           backend=backend)
+                           backend=backend, prefer=prefer)
     con = _out()
     con.print(f"calibrating {mat.name} ({dim}-D specimens, d = {d_mean:g} m) -> {out}",
               highlight=False)
@@ -565,6 +568,73 @@ def calibrate_cmd(
         con.print(f"saved the {dim}-D calibration into {path}", highlight=False)
     if not summary["converged"]:
         raise typer.Exit(FAILURE)
+
+
+def _float_list(value: Optional[str], name: str, integer=False):
+    if value is None:
+        return None
+    try:
+        vals = [int(v) if integer else float(v) for v in value.split(",") if v.strip()]
+    except ValueError:
+        raise typer.BadParameter(f"{name}: comma-separated {'integers' if integer else 'numbers'}"
+                                 f", got {value!r}") from None
+    if not vals or any(v <= 0 for v in vals):
+        raise typer.BadParameter(f"{name}: allowed values > 0, got {value!r}")
+    return vals
+
+
+@app.command("study", help=(
+    "Speed against accuracy of a lab test over resolution and time-step fraction.\n\n"
+    "KIND is 'ucs': runs WORKFLOW (default workflows/ucs.yaml) for every number of elements "
+    "across the height (--across) and time-step fraction (--dt-fractions); writes study.json "
+    "(wall time, E and UCS errors against the material's targets per point) and "
+    "speed_accuracy.png into -o DIR, and names the fastest point within --tolerance."))
+@_guard
+def study_cmd(
+    kind: Annotated[str, typer.Argument(metavar="KIND", help="ucs")],
+    out: Annotated[str, typer.Option("-o", "--out", help="Output directory.")],
+    workflow: Annotated[str, typer.Option("--workflow", help="UCS workflow file.")] =
+    "workflows/ucs.yaml",
+    across: Annotated[str, typer.Option("--across", help="Elements across the height, "
+                                                         "comma-separated.")] = "10,15,20,30,40",
+    fractions: Annotated[str, typer.Option("--dt-fractions", help="Time-step fractions, "
+                                                                  "comma-separated.")] =
+    "0.02,0.05,0.1",
+    material: Annotated[str, typer.Option("--material", help="Material name in the "
+                                                             "workflow.")] = "rock",
+    tolerance: Annotated[float, typer.Option("--tolerance", min=1e-6, max=1.0,
+                                             help="Error bound for 'fastest within'.")] = 0.05,
+    backend: Annotated[Optional[str], typer.Option(
+        "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
+):
+    from geodem.labtests.study import ucs_study
+
+    if kind != "ucs":
+        _fail(f"study KIND {kind!r}: allowed: ucs", USER_ERROR)
+    n = _float_list(across, "--across", integer=True)
+    f = _float_list(fractions, "--dt-fractions")
+    if any(v > 0.2 for v in f):
+        _fail("--dt-fractions: allowed 0 < fraction <= 0.2 (simulation.dt_fraction)", USER_ERROR)
+    con = _out()
+
+    def report(p):
+        if "E_rel_error" in p:
+            con.print(f"{p['n_across']:>4} across, dt {p['dt_fraction']:g}: {p['n_elements']} "
+                      f"elements, {p['wall_time_s']:.1f} s, E error {p['E_rel_error']:+.1%}, "
+                      f"UCS error {p['ucs_rel_error']:+.1%}", highlight=False)
+        else:
+            con.print(f"{p['n_across']:>4} across, dt {p['dt_fraction']:g}: {p['status']}: "
+                      f"{p.get('error')}", highlight=False)
+
+    rec = ucs_study(workflow, out, across=n, fractions=f, material=material,
+                    tolerance=tolerance, backend=backend, progress=report)
+    b = rec["fastest_within_tolerance"]
+    if b:
+        con.print(f"fastest within {tolerance:.0%}: {b['n_across']} across, dt fraction "
+                  f"{b['dt_fraction']:g} ({b['wall_time_s']:.1f} s)", highlight=False)
+    else:
+        con.print(f"no point within {tolerance:.0%}", highlight=False)
+    con.print(f"wrote study.json, speed_accuracy.png to {out}", highlight=False)
 
 
 @app.command("validate", help=(

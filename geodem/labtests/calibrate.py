@@ -59,7 +59,7 @@ PRIOR = {
     # 2-D: nu(s) of the random disc packings is about 0.26 - 0.49 (s - 0.5) near s = 0.5
     # (measured: s = 0.5 -> 0.26, s = 1 -> 0.015); their nu is far above the lattice's at
     # small s, so the prior sets s from this line instead of the lattice formula
-    2: {"E": 2.7, "Tu": 3.0, "Cu": 12.5, "s_of_nu": (0.5, 0.26, -0.49),
+    2: {"E": 2.7, "Tu": 1.35, "Cu": 9.0, "s_of_nu": (0.5, 0.26, -0.49),
         "dlnE_ds": 0.5, "dnu_ds": -0.5, "dlnTu_dlnrho": 0.15, "dlnCu_dlnrho": 0.75},
     3: {"E": 2.7, "Tu": 6.0, "Cu": 6.5, "s_of_nu": None,
         "dlnE_ds": 0.5, "dnu_ds": -0.25, "dlnTu_dlnrho": 0.15, "dlnCu_dlnrho": 0.75},
@@ -102,12 +102,16 @@ class CalibrationSpec:
     iterations: int = 6
     tolerances: dict = field(default_factory=lambda: dict(TOLERANCES))
     backend: str | None = None
+    prefer: str = "Cu"  # strength matched when Cu / Tu is out of reach
+
 
     def __post_init__(self):
         if self.dim not in (2, 3):
             raise ValueError(f"dim = {self.dim!r}: allowed 2 or 3")
         if not 1 <= int(self.iterations) <= 20:
             raise ValueError(f"iterations = {self.iterations!r}: allowed 1-20")
+        if self.prefer not in ("Cu", "Tu"):
+            raise ValueError(f"prefer = {self.prefer!r}: allowed 'Cu' or 'Tu'")
         if len(self.ucs_size) != self.dim:
             raise ValueError(f"ucs_size needs {self.dim} values for dim = {self.dim}")
 
@@ -165,12 +169,13 @@ def sane(J):
     return J
 
 
-def newton_step(J, u, y, y_target, pinned=None):
+def newton_step(J, u, y, y_target, pinned=None, prefer="Cu"):
     """Next ``u``: ``J du = y_target - y``, bounded (s in S_RANGE, rho_s in RHO_RANGE, at most a
     factor 3 per step in the log variables). ``pinned`` maps unknown index -> value held
     (a target found unreachable): those columns are fixed and the rest solved without the row
-    of the unreachable target (s pinned: the nu row; rho_s pinned: the Cu row, so Tu is
-    matched and Cu is the closest the packing gets)."""
+    of the unreachable target (s pinned: the nu row; rho_s pinned: the row of the strength
+    not in ``prefer``, so the preferred one is matched and the other is as close as the
+    packing gets)."""
     r = y_target - y
     if pinned:
         du = np.zeros(4)
@@ -178,7 +183,7 @@ def newton_step(J, u, y, y_target, pinned=None):
         for c, v in pinned.items():
             du[c] = v - u[c]
         rows = [k for k in range(4) if not (k == 1 and 1 in pinned)
-                and not (k == 3 and 3 in pinned)]
+                and not (k == (2 if prefer == "Cu" else 3) and 3 in pinned)]
         rhs = r[rows] - J[np.ix_(rows, list(pinned))] @ du[list(pinned)]
         du[cols] = np.linalg.lstsq(J[np.ix_(rows, cols)], rhs, rcond=None)[0]
     else:
@@ -306,12 +311,13 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         # reachability: the Newton step wants s or rho_s beyond the searched range while
         # already at its bound -> pin it there and match the others
         want = u + np.linalg.solve(J, y_t - y)
-        for idx, key, (lo, hi) in ((1, "nu", S_RANGE), (3, "Cu", tuple(np.log(RHO_RANGE)))):
+        other = "Tu" if spec.prefer == "Cu" else "Cu"
+        for idx, key, (lo, hi) in ((1, "nu", S_RANGE), (3, other, tuple(np.log(RHO_RANGE)))):
             for bound, beyond in ((lo, want[idx] < lo - 1e-9), (hi, want[idx] > hi + 1e-9)):
                 if beyond and abs(u[idx] - bound) < 1e-9:
                     reachable[key] = False
                     pinned[idx] = bound
-        u = newton_step(J, u, y, y_t, pinned)
+        u = newton_step(J, u, y, y_t, pinned, spec.prefer)
     for rec in history:  # judged on what is reachable
         rec["score"] = _score(rec["measured"], tg, tol, reachable)
     best = min(history, key=lambda r: r["score"])
@@ -319,12 +325,15 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         notes.append(f"nu = {tg['nu']:g} is beyond this packing: with ks / kn at its bound "
                      f"({pinned[1]:g}) it measures nu = "
                      f"{best['measured']['nu']:.3g}; E, Tu and Cu are matched")
-    if not reachable["Cu"]:
+    if 3 in pinned:
+        other = "Tu" if spec.prefer == "Cu" else "Cu"
         notes.append(f"Cu / Tu = {tg['Cu'] / tg['Tu']:.3g} is beyond what the bond law gives "
-                     "this packing: with the bonds' shear strength at its bound "
+                     f"this packing: with the bonds' shear strength at its bound "
                      f"({math.exp(pinned[3]):.3g} x the tensile) it measures Cu / Tu = "
-                     f"{best['measured']['Cu'] / best['measured']['Tu']:.3g}; Tu, E and nu are "
-                     "matched, Cu is the largest this packing reaches")
+                     f"{best['measured']['Cu'] / best['measured']['Tu']:.3g}. {spec.prefer} is "
+                     f"matched (prefer = {spec.prefer}), {other} is what the packing gives with "
+                     "it; more shear strength does not help: failure is by tensile bond "
+                     "breakage (PHYSICS.md section 2, 'random packings')")
     wall = time.perf_counter() - t0
     summary = {
         "material": spec.name, "dim": spec.dim,

@@ -66,11 +66,15 @@ def test_bad_spec_is_refused():
         C.CalibrationSpec(targets=TARGETS, iterations=0)
 
 
-def test_unreachable_strength_ratio_is_reported(tmp_path):
+@pytest.mark.parametrize("prefer", ["Cu", "Tu"])
+def test_unreachable_strength_ratio_is_reported(tmp_path, prefer):
     # Cu / Tu <= about 40 on this packing (rho_s <= 50); 100 cannot be reached
-    out = C.calibrate(spec(Cu=400e6), tmp_path, measure_fn=synthetic)
-    assert out["reachable"]["Cu"] is False
+    sp = C.CalibrationSpec(targets=dict(TARGETS, Cu=400e6), name="synthetic", prefer=prefer)
+    out = C.calibrate(sp, tmp_path, measure_fn=synthetic)
+    other = "Tu" if prefer == "Cu" else "Cu"
+    assert out["reachable"][other] is False and out["reachable"][prefer] is True
     assert any("Cu / Tu" in n for n in out["notes"])
+    assert abs(out["rel_errors"][prefer]) <= 0.05
     assert abs(out["rel_errors"]["E"]) <= 0.05 and abs(out["abs_errors"]["nu"]) <= 0.03
 
 
