@@ -419,8 +419,8 @@ def _cache(fn):
 def workflow_model():
     """The Workflow model class over the currently registered models and step kinds."""
     load_builtins()
-    Model = _union(list(MODELS.values()), "type")
-    Step = _union(list(STEPS.values()), "kind")
+    Model = _union([MODELS[k] for k in sorted(MODELS)], "type")  # sorted: import order free
+    Step = _union([STEPS[k] for k in sorted(STEPS)], "kind")
 
     class WorkflowBase(Strict):
         """A geodem workflow: a model, its materials and an ordered list of steps."""

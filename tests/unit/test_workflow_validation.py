@@ -285,7 +285,7 @@ def test_unknown_and_missing_step_kind(tmp_path):
                                                                         "  - kid: fix\n"))
     res = validate(p)
     e = one_error(res, "steps[1]")
-    assert e["line"] == "25" and "unknown kind 'runn'; allowed: run, balance" in e["msg"]
+    assert e["line"] == "25" and "unknown kind 'runn'; allowed: balance, brazilian" in e["msg"]
     e = one_error(res, "steps[0]")
     assert e["line"] == "23" and "missing 'kind'" in e["msg"]
 
