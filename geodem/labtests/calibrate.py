@@ -99,6 +99,7 @@ class CalibrationSpec:
     distri_rate: float = 0.2
     seed: int = 0
     strain_rate: float = 0.2
+    max_strain: float = 0.02  # the same sample grid as workflows/ucs.yaml
     iterations: int = 6
     tolerances: dict = field(default_factory=lambda: dict(TOLERANCES))
     backend: str | None = None
@@ -210,8 +211,8 @@ def _ucs_workflow(spec, el):
                       "material": "rock"},
             "materials": {"rock": _material_block(spec, el)},
             "steps": [{"kind": "uniaxial", "name": "ucs", "strain_rate": spec.strain_rate,
-                       "max_strain": 0.05, "drop": 0.7}],
-            "outputs": {"observables": {"every": 2000}}}
+                       "max_strain": spec.max_strain, "drop": 0.7}],
+            "outputs": {"observables": {"every": 1000}}}
 
 
 def _brazilian_workflow(spec, el):
@@ -223,8 +224,9 @@ def _brazilian_workflow(spec, el):
                          "description": f"calibration of {spec.name}: Brazilian test"},
             "model": model,
             "materials": {"rock": _material_block(spec, el)},
-            "steps": [{"kind": "brazilian", "name": "brazilian"}],
-            "outputs": {"observables": {"every": 2000}}}
+            "steps": [{"kind": "brazilian", "name": "brazilian", "loading_rate": 0.1,
+                       "max_strain": 0.01, "drop": 0.5}],  # as workflows/brazilian.yaml
+            "outputs": {"observables": {"every": 1000}}}
 
 
 def _run(doc, folder: Path, backend):
@@ -351,7 +353,8 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         "notes": notes,
         "specimen": {"d_mean": spec.d_mean, "ucs_size": list(spec.ucs_size),
                      "disc_diameter": spec.disc_diameter, "distri_rate": spec.distri_rate,
-                     "seed": spec.seed, "strain_rate": spec.strain_rate},
+                     "seed": spec.seed, "strain_rate": spec.strain_rate,
+                     "max_strain": spec.max_strain},
         "history": history,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
