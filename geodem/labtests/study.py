@@ -33,7 +33,7 @@ def _targets(workflow: Path, material: str):
 def ucs_study(workflow, out_dir, across=(10, 15, 20, 30, 40), fractions=(0.02, 0.05, 0.1),
               material: str = "rock", tolerance: float = 0.05, backend=None, progress=None):
     """Run the grid; returns the study record (also written to ``study.json``)."""
-    from geodem.workflow import run_workflow
+    from geodem.workflow import WorkflowError, run_workflow
 
     wf = Path(workflow)
     out = Path(out_dir)
@@ -45,9 +45,13 @@ def ucs_study(workflow, out_dir, across=(10, 15, 20, 30, 40), fractions=(0.02, 0
             d = height / float(n)
             run = out / f"across{n}_dt{f:g}"
             t0 = time.perf_counter()
-            code, s = run_workflow(wf, run, sets=[f"model.d_mean={d!r}",
-                                                  f"simulation.dt_fraction={f!r}"],
-                                   backend=backend, overwrite=True, echo=False, progress=False)
+            try:
+                code, s = run_workflow(wf, run, sets=[f"model.d_mean={d!r}",
+                                                      f"simulation.dt_fraction={f!r}"],
+                                       backend=backend, overwrite=True, echo=False,
+                                       progress=False)
+            except WorkflowError as exc:  # e.g. a specimen too coarse to build: a point lost
+                code, s = 2, {"status": "invalid", "error": str(exc)}
             wall = time.perf_counter() - t0
             p = {"n_across": n, "dt_fraction": f, "d_mean": d, "status": s.get("status"),
                  "wall_time_s": wall, "n_elements": s.get("n_elements"),
