@@ -71,7 +71,6 @@ from geodem.workflow.labtests import SpecimenMaterial, specimen_material
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
     F,
-    MicroMaterial,
     ModelBase,
     Name,
     StepBase,
@@ -86,21 +85,6 @@ TENSION_CURVE = "direct_tension_curve.csv"
 TENSION_COLUMNS = ("step", "time", "strain", "stress", "force", "cracks_tensile", "cracks_shear",
                    "cracks_total")
 MIN_ACROSS = 6  # the packer cannot fill a disc fewer element diameters across
-
-
-def disc_material(cfg, name: str, dim: int, d_mean: float) -> SpecimenMaterial:
-    """:func:`~geodem.workflow.labtests.specimen_material`, plus element parameters given
-    directly (``kn, ks, xb, fs0, mu`` for an element of diameter ``d_mean``; unset ``xb``/``fs0``:
-    unbreakable), scaled to the other sizes by ``kn, ks, xb ∝ d``, ``fs0 ∝ d^2``."""
-    from geodem.materials import per_size
-
-    m = cfg.materials[name]
-    if isinstance(m, MicroMaterial):
-        el = {"kn": m.kn, "ks": m.ks, "xb": m.xb if m.xb is not None else 1.0e6 * d_mean,
-              "fs0": m.fs0 if m.fs0 is not None else 1.0e12, "mu": m.mu}
-        return SpecimenMaterial(m.rho, element=per_size(el, d_mean),
-                                label=f"element parameters at d = {d_mean:g} m")
-    return specimen_material(cfg, name, dim)
 
 
 def prune_loose(state, min_bonds: int = 2, n_across: float | None = None, tol: float = 1e-3):
@@ -368,13 +352,13 @@ class BrazilianDisc(ModelBase):
                                         f"{self.disc_thickness():g} m)"))
         if self.material in cfg.materials:
             try:
-                disc_material(cfg, self.material, self.dim, self.d_mean)
+                specimen_material(cfg, self.material, self.dim, self.d_mean)
             except ValueError as exc:
                 out.append((("material",), str(exc)))
         return out
 
     def build(self, cfg):
-        sm = disc_material(cfg, self.material, self.dim, self.d_mean)
+        sm = specimen_material(cfg, self.material, self.dim, self.d_mean)
         seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
         t = self.disc_thickness()
         try:

@@ -67,20 +67,31 @@ class SpecimenMaterial:
         return dict(self.macro) if self.macro else {"rho": self.rho}
 
 
-def specimen_material(cfg, name: str, dim: int) -> SpecimenMaterial:
+def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> SpecimenMaterial:
     """Resolve ``cfg.materials[name]`` for a bonded specimen of dimension ``dim``.
 
     * rock properties (``E, nu, ...``): lattice conversion (nu < 0.2 needed: at 0.2 the
       shear springs vanish and a random packing is a mechanism);
     * per-size element parameters (``kn_per_d, ...``, e.g. from ``geodem calibrate``);
     * ``{library: NAME}``: the library file's calibration for ``dim`` (``use: auto`` or
-      ``calibrated``), else its laboratory values on the lattice (clamped, with warnings).
+      ``calibrated``), else its laboratory values on the lattice (clamped, with warnings);
+    * element parameters (``kn, ks, xb, fs0, mu``) for an element of diameter ``d_mean`` (needs
+      ``d_mean``; unset ``xb``/``fs0``: unbreakable), scaled to the other sizes by
+      ``kn, ks, xb ∝ d``, ``fs0 ∝ d^2``.
 
     Raises ``ValueError`` with the reason (the callers turn it into a field error)."""
     from geodem.materials_library import load_material, to_micro
     from geodem.workflow.schema import LibraryMaterial, ScaledMicroMaterial
 
+    from geodem.materials import per_size
+    from geodem.workflow.schema import MicroMaterial
+
     m = cfg.materials[name]
+    if isinstance(m, MicroMaterial) and d_mean is not None:
+        el = {"kn": m.kn, "ks": m.ks, "xb": m.xb if m.xb is not None else 1.0e6 * d_mean,
+              "fs0": m.fs0 if m.fs0 is not None else 1.0e12, "mu": m.mu}
+        return SpecimenMaterial(m.rho, element=per_size(el, d_mean),
+                                label=f"element parameters at d = {d_mean:g} m")
     if isinstance(m, MacroMaterial):
         if m.nu >= 0.2:
             raise ValueError(f"material {name!r} has nu = {m.nu:g}: macro_to_micro then gives "

@@ -92,7 +92,6 @@ from geodem.workflow.labtests import SpecimenMaterial, specimen_material
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
     F,
-    MicroMaterial,
     ModelBase,
     Name,
     StepBase,
@@ -143,21 +142,6 @@ def wall_clearance(st, names) -> tuple[float, str, str]:
             if g < best:
                 best, pair = g, (a, b)
     return best, pair[0], pair[1]
-
-
-def box_material(cfg, name: str, dim: int, d_mean: float) -> SpecimenMaterial:
-    """:func:`~geodem.workflow.labtests.specimen_material`, plus element parameters given
-    directly (``kn, ks, xb, fs0, mu`` for an element of diameter ``d_mean``; unset ``xb``/``fs0``:
-    unbreakable), scaled to the other sizes by ``kn, ks, xb ∝ d``, ``fs0 ∝ d^2``."""
-    from geodem.materials import per_size
-
-    m = cfg.materials[name]
-    if isinstance(m, MicroMaterial):
-        el = {"kn": m.kn, "ks": m.ks, "xb": m.xb if m.xb is not None else 1.0e6 * d_mean,
-              "fs0": m.fs0 if m.fs0 is not None else 1.0e12, "mu": m.mu}
-        return SpecimenMaterial(m.rho, element=per_size(el, d_mean),
-                                label=f"element parameters at d = {d_mean:g} m")
-    return specimen_material(cfg, name, dim)
 
 
 # ============================================================================ specimen
@@ -364,7 +348,7 @@ class TriaxialBox(ModelBase):
                                   "(zero wall stresses; not diagnosed yet); use dim: 2"))
         if self.material in cfg.materials:
             try:
-                box_material(cfg, self.material, self.dim, self.d_mean)
+                specimen_material(cfg, self.material, self.dim, self.d_mean)
             except ValueError as exc:
                 out.append((("material",), str(exc)))
         return out
@@ -372,7 +356,7 @@ class TriaxialBox(ModelBase):
     def build(self, cfg):
         from geodem.build.walls import add_walls
 
-        sm = box_material(cfg, self.material, self.dim, self.d_mean)
+        sm = specimen_material(cfg, self.material, self.dim, self.d_mean)
         seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
         dw = self.d_wall()
         try:
