@@ -132,6 +132,19 @@ def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> 
 
 
 # ============================================================================ specimen
+def box_size_problems(size, dim: int, d_mean: float) -> list:
+    """Field problems of a box specimen's ``size`` (``dim`` lengths > 0, at least 4 d_mean)."""
+    if len(size) != dim:
+        return [(("size",), f"{len(size)} values for dim = {dim}; allowed: {dim} lengths > 0 "
+                            "[m]")]
+    if any(not s > 0 for s in size):
+        return [(("size",), "allowed: lengths > 0 [m]")]
+    if min(size) < 4 * d_mean:
+        return [(("size",), f"the specimen must be at least 4 d_mean = {4 * d_mean:g} m "
+                            "across")]
+    return []
+
+
 @register_model("specimen")
 class Specimen(ModelBase):
     """A bonded random specimen (box) from rock properties: packed, cut, cemented and balanced
@@ -172,15 +185,7 @@ class Specimen(ModelBase):
         return float(self.size[-1] / self.d_mean) if self.size else 1.0
 
     def check(self, cfg):
-        out = []
-        if len(self.size) != self.dim:
-            out.append((("size",), f"{len(self.size)} values for dim = {self.dim}; allowed: "
-                                   f"{self.dim} lengths > 0 [m]"))
-        elif any(not s > 0 for s in self.size):
-            out.append((("size",), "allowed: lengths > 0 [m]"))
-        elif min(self.size) < 4 * self.d_mean:
-            out.append((("size",), f"the specimen must be at least 4 d_mean = "
-                                   f"{4 * self.d_mean:g} m across"))
+        out = box_size_problems(self.size, self.dim, self.d_mean)
         if self.material in cfg.materials:
             try:
                 specimen_material(cfg, self.material, self.dim)

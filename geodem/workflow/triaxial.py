@@ -88,7 +88,7 @@ from typing import Literal, Optional
 
 import numpy as np
 
-from geodem.workflow.labtests import SpecimenMaterial, specimen_material
+from geodem.workflow.labtests import SpecimenMaterial, box_size_problems, specimen_material
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
     F,
@@ -333,15 +333,7 @@ class TriaxialBox(ModelBase):
         return float(self.size[-1] / self.d_mean) if self.size else 1.0
 
     def check(self, cfg):
-        out = []
-        if len(self.size) != self.dim:
-            out.append((("size",), f"{len(self.size)} values for dim = {self.dim}; allowed: "
-                                   f"{self.dim} lengths > 0 [m]"))
-        elif any(not s > 0 for s in self.size):
-            out.append((("size",), "allowed: lengths > 0 [m]"))
-        elif min(self.size) < 4 * self.d_mean:
-            out.append((("size",), f"the specimen must be at least 4 d_mean = "
-                                   f"{4 * self.d_mean:g} m across"))
+        out = box_size_problems(self.size, self.dim, self.d_mean)
         if self.dim == 3:
             out.append((("dim",), "triaxial_box is 2-D only for now: in a first 3-D run the "
                                   "walls never came into contact with the packed specimen "
