@@ -18,10 +18,16 @@ from geodem.core.state import State
 _SCALARS = ("dim", "thickness", "hertz", "dt", "step", "time", "skin", "e0")
 
 
-def save_state(state: State, path, extra: dict | None = None) -> None:
-    """Write ``state`` (and JSON-able ``extra``) to ``path`` atomically (temp file + rename)."""
+def save_state(state: State, path, extra: dict | None = None,
+               extra_arrays: dict | None = None) -> None:
+    """Write ``state`` (and JSON-able ``extra``, and the arrays ``extra_arrays`` under their own
+    keys) to ``path`` atomically (temp file + rename)."""
     path = os.fspath(path)
     arrays = {k: v for k, v in state.arrays().items()}
+    for k, v in (extra_arrays or {}).items():
+        if k in arrays or k in ("gravity", "__meta__"):
+            raise ValueError(f"extra array {k!r} would overwrite a state array")
+        arrays[k] = v
     arrays["gravity"] = state.gravity
     meta = {k: getattr(state, k) for k in _SCALARS}
     meta["hertz"] = bool(meta["hertz"])
@@ -40,11 +46,16 @@ def save_state(state: State, path, extra: dict | None = None) -> None:
         raise
 
 
-def load_state(path):
-    """Read a checkpoint; returns ``(state, extra)``."""
+def load_state(path, with_arrays: bool = False):
+    """Read a checkpoint; returns ``(state, extra)``, or ``(state, extra, extra_arrays)`` with
+    ``with_arrays``."""
+    names = {f.name for f in fields(State)}
     with np.load(os.fspath(path)) as z:
         meta = json.loads(bytes(z["__meta__"]).decode())
-        kw = {f.name: z[f.name].copy() for f in fields(State) if f.name in z.files}
+        kw = {k: z[k].copy() for k in z.files if k in names}
+        more = {k: z[k].copy() for k in z.files if k not in names and k != "__meta__"}
     kw.update({k: meta[k] for k in _SCALARS})
     kw["groups"] = meta["groups"]
+    if with_arrays:
+        return State(**kw), meta["extra"], more
     return State(**kw), meta["extra"]

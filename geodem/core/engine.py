@@ -112,6 +112,8 @@ class Simulation:
         self.monitor_every = int(monitor_every)
         self.rebuilds = 0
         self.cracks = {"i": [], "j": [], "time": [], "type": []}
+        self.fields = []
+        self._field_every = 0
         self.backend = select(backend)
         if state.step == 0:
             # a fresh model: evaluate the initial forces so the first step starts from a = F/m
@@ -130,18 +132,45 @@ class Simulation:
         """Advance ``nsteps`` steps; ``callback(sim)`` every ``every`` steps if given."""
         s, b = self.state, self.backend
         dt = s.dt
+        every_field = self._field_every
         for _ in range(int(nsteps)):
             b.move(dt)
             nxt = s.step + 1
             b.force(dt, broken_code(nxt, 1), broken_code(nxt, 2))
             s.step = nxt
             s.time += dt
+            if every_field and nxt % every_field == 0:
+                self._advance_fields(nxt)
             if nxt % self.check_every == 0:
                 self._checks()
             if callback is not None and every and nxt % every == 0:
                 callback(self)
         self._harvest()
         return self
+
+    # ------------------------------------------------------------------ coupled fields
+    def add_field(self, field) -> None:
+        """Couple a :class:`geodem.fields.CoupledField`; it advances every ``field.every``
+        steps by that span of time, sub-stepping on its own stable step."""
+        field.attach(self)
+        self.fields.append(field)
+        self._field_every = math.gcd(*[f.every for f in self.fields])
+
+    def field(self, kind: str):
+        """The coupled field of ``kind`` (KeyError if none)."""
+        for f in self.fields:
+            if f.kind == kind:
+                return f
+        raise KeyError(f"no coupled field {kind!r} in this simulation "
+                       f"(coupled: {[f.kind for f in self.fields]})")
+
+    def _advance_fields(self, step: int) -> None:
+        b, dt = self.backend, self.state.dt
+        for f in self.fields:
+            if step % f.every == 0:
+                b.pull(tuple(f.reads) + tuple(f.writes))
+                f.advance(self, f.every * dt)
+                b.push(tuple(f.writes))
 
     def _checks(self):
         s, b = self.state, self.backend
@@ -368,17 +397,25 @@ class Simulation:
 
         self.sync()
         self._harvest()
+        from geodem.fields import pack_arrays
+
         save_state(self.state, path, extra={"cracks": self.cracks, "eg0": self._eg0,
                                             "emech0": self._emech0,
                                             "check_every": self.check_every,
-                                            "monitor_every": self.monitor_every})
+                                            "monitor_every": self.monitor_every,
+                                            "fields": [{"kind": f.kind, "config": f.config(),
+                                                        "substeps": f.substeps}
+                                                       for f in self.fields]},
+                   extra_arrays=pack_arrays(self.fields))
 
     @classmethod
     def load(cls, path, backend=None) -> "Simulation":
         """Resume from :meth:`save`'s checkpoint; stepping continues bit-identically on CPU."""
         from geodem.core.checkpoint import load_state
 
-        state, extra = load_state(path)
+        from geodem.fields import field_from_config, unpack_arrays
+
+        state, extra, more = load_state(path, with_arrays=True)
         sim = cls.__new__(cls)
         sim.state = state
         sim.check_every = int(extra["check_every"])
@@ -390,6 +427,13 @@ class Simulation:
         sim._floor = max(1e-12 * 0.5 * float((state.kn * state.r * state.r).sum()), 1e-300)
         sim.backend = select(backend)
         sim.backend.attach(state)
+        sim.fields, sim._field_every = [], 0
+        for k, rec in enumerate(extra.get("fields", [])):
+            f = field_from_config(rec["kind"], rec["config"])
+            sim.add_field(f)
+            f.restore(unpack_arrays(k, more))
+            f.substeps = int(rec.get("substeps", 0))
+        sim.backend.push()
         return sim
 
     def bonded_count(self) -> int:

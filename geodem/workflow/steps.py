@@ -389,6 +389,24 @@ def _plot(path, crit, osc, labels):
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
-from geodem.workflow import labtests  # noqa: E402,F401  (registers specimen, uniaxial)
-from geodem.workflow import brazilian  # noqa: E402,F401  (registers brazilian_disc, brazilian, direct_tension)
-from geodem.workflow import triaxial  # noqa: E402,F401  (registers triaxial_box, triaxial)
+# modules that register more models and step kinds (each is one module; nothing else changes)
+BUILTIN_MODULES = ("labtests",   # specimen, uniaxial
+                   "brazilian",  # brazilian_disc, brazilian, direct_tension
+                   "triaxial",   # triaxial_box, triaxial
+                   "thermal",    # thermal models and steps
+                   "hydrofrac")  # pore-fluid models and steps
+
+
+def _import_builtin_modules():
+    import importlib
+
+    for name in BUILTIN_MODULES:
+        mod = f"geodem.workflow.{name}"
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as exc:
+            if exc.name != mod:  # a missing dependency inside the module is a real error
+                raise
+
+
+_import_builtin_modules()

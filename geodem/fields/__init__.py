@@ -1,0 +1,145 @@
+"""Coupled fields: physics that lives beside the bonded solid and sub-steps against it.
+
+A coupled field (temperature, pore fluid, ...) is a :class:`CoupledField` subclass registered with
+``@register_field("kind")``. The time-step loop knows nothing about any particular field: every
+``every`` mechanical steps ``Simulation`` calls :meth:`CoupledField.advance` with the span of
+mechanical time to cover, and the field sub-steps on its own stable step (DESIGN.md: "coupled
+fields advance on their own stable time step and sub-step against the mechanical step").
+
+Contract of a field (one contract test runs over every registered kind):
+
+* ``reads`` / ``writes``: names of :class:`~geodem.core.state.State` arrays it reads and writes,
+  with units. On a device backend those arrays are pulled before and pushed after each coupling
+  (CPU backends share the arrays; nothing is copied).
+* ``attach(sim)``: size its own arrays for ``sim.state``; called once by ``Simulation.add_field``.
+* ``stable_dt(sim)``: its explicit stability limit [s].
+* ``substep(sim, h)``: advance its own state by ``h`` seconds (``h <= safety * stable_dt``).
+* ``config()``: JSON-able constructor keywords; ``arrays()`` / ``restore(arrays)``: its state for
+  checkpoints (a run resumed from a checkpoint continues bit-identically on CPU).
+* ``summary()``: key results as numbers (merged into a workflow's summary by the steps that use it).
+"""
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import numpy as np
+
+FIELDS: dict[str, type] = {}
+
+
+def register_field(kind: str):
+    """Class decorator: register a coupled field (a :class:`CoupledField` subclass) as ``kind``."""
+
+    def deco(cls):
+        if not (isinstance(cls, type) and issubclass(cls, CoupledField)):
+            raise TypeError("register_field decorates CoupledField subclasses")
+        if kind in FIELDS and FIELDS[kind].__qualname__ != cls.__qualname__:
+            raise ValueError(f"coupled field {kind!r} is already registered")
+        cls.kind = kind
+        FIELDS[kind] = cls
+        return cls
+
+    return deco
+
+
+class FieldStabilityError(RuntimeError):
+    """A coupled field cannot advance stably (its own step would be needlessly tiny or invalid)."""
+
+
+class CoupledField:
+    """Base class of coupled fields (see the module docstring for the contract)."""
+
+    kind: ClassVar[str] = ""
+    #: state arrays read, name -> unit
+    reads: ClassVar[dict] = {}
+    #: state arrays written, name -> unit
+    writes: ClassVar[dict] = {}
+    #: fraction of the stable step actually used
+    safety: ClassVar[float] = 0.5
+    #: most sub-steps per coupling before the run is stopped as hopeless
+    max_substeps: ClassVar[int] = 100_000
+
+    def __init__(self, every: int = 1):
+        if int(every) < 1:
+            raise ValueError(f"every = {every}: a field couples every >= 1 mechanical steps")
+        self.every = int(every)
+        self.substeps = 0  # sub-steps taken so far (for reports)
+
+    # -- to implement -------------------------------------------------------------------
+    def attach(self, sim) -> None:
+        raise NotImplementedError
+
+    def stable_dt(self, sim) -> float:
+        raise NotImplementedError
+
+    def substep(self, sim, h: float) -> None:
+        raise NotImplementedError
+
+    def config(self) -> dict:
+        return {"every": self.every}
+
+    def arrays(self) -> dict:
+        return {}
+
+    def restore(self, arrays: dict) -> None:
+        pass
+
+    def summary(self) -> dict:
+        return {}
+
+    # -- provided -------------------------------------------------------------------------
+    def advance(self, sim, span: float) -> int:
+        """Cover ``span`` seconds of mechanical time in ``n`` equal sub-steps of at most
+        ``safety * stable_dt``; returns ``n``."""
+        lim = self.stable_dt(sim)
+        if not (lim > 0.0):
+            raise FieldStabilityError(
+                f"coupled field {self.kind!r}: stable step is {lim!r} s at step "
+                f"{sim.state.step}; check its conductances and capacities")
+        n = max(1, math.ceil(span / (self.safety * lim) - 1e-9))
+        if n > self.max_substeps:
+            raise FieldStabilityError(
+                f"coupled field {self.kind!r} needs {n} sub-steps per coupling (stable step "
+                f"{lim:.3g} s against {span:.3g} s of mechanical time): the field is far stiffer "
+                f"than the solid; lower its conductivity/compressibility or couple more often "
+                f"(every = {self.every})")
+        h = span / n
+        for _ in range(n):
+            self.substep(sim, h)
+        self.substeps += n
+        return n
+
+
+def field_from_config(kind: str, config: dict) -> CoupledField:
+    """Re-create a registered field from its :meth:`CoupledField.config` (checkpoints)."""
+    load_builtin()
+    if kind not in FIELDS:
+        raise KeyError(f"unknown coupled field {kind!r}; registered: {sorted(FIELDS)}")
+    return FIELDS[kind](**config)
+
+
+def load_builtin() -> None:
+    """Import the built-in fields (they register themselves)."""
+    import importlib
+
+    for mod in ("geodem.fields.thermal", "geodem.fields.pore"):
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as exc:  # a field module not written yet
+            if exc.name != mod:
+                raise
+
+
+def pack_arrays(fields_list) -> dict:
+    """Arrays of every field for a checkpoint, keyed ``field{k}:{name}``."""
+    out = {}
+    for k, f in enumerate(fields_list):
+        for name, arr in f.arrays().items():
+            out[f"field{k}:{name}"] = np.asarray(arr)
+    return out
+
+
+def unpack_arrays(k: int, arrays: dict) -> dict:
+    pre = f"field{k}:"
+    return {name[len(pre):]: a for name, a in arrays.items() if name.startswith(pre)}
