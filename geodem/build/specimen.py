@@ -207,6 +207,13 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
     stf = packing.stiffen(st, factor, backend=backend)
     xb_min = float(params["xb"]) * float(st.r[groups.members(st, "sample")].min()) * 2 / d_mean
     rel = packing.relax(st, RELAX_OVERLAP * xb_min, sim=stf["sim"])
+    if rel["max_overlap"] > RELAX_OVERLAP * xb_min:
+        # cementing now would lock in overlaps that break the bonds as soon as the walls go
+        raise RuntimeError(
+            f"the packing did not relax: largest overlap {rel['max_overlap']:.3g} m = "
+            f"{rel['max_overlap'] / xb_min:.3g} x the smallest breaking displacement after "
+            f"{rel['rounds']} balance rounds (needed < {RELAX_OVERLAP}); report this with the "
+            "arguments used")
     s = groups.members(st, "sample")
     top = float(st.x[s, -1].max())
     off = np.append(np.full(dim - 1, margin), margin)
@@ -230,6 +237,7 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
                 "packing": {"deposit_steps": dep["steps"], "compact_steps": com["steps"],
                             "stiffen_steps": stf["steps"], "stiffen_factor": factor,
                             "relax_steps": rel["steps"],
+                            "relax_platen_lifts": rel["platen_lifts"],
                             "relax_max_overlap_over_xb": rel["max_overlap"] / xb_min,
                             "compaction_pressure": com["pressure"],
                             "n_deposited": int(s.size)}})

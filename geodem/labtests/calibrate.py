@@ -51,6 +51,7 @@ TOLERANCES = {"E": 0.05, "nu": 0.03, "Cu": 0.05, "Tu": 0.05}  # nu absolute, oth
 KEYS = ("E", "nu", "Tu", "Cu")
 S_RANGE = (0.0, 1.5)  # ks / kn searched
 RHO_RANGE = (0.05, 50.0)  # fs0 / (kn xb) searched (per d^2)
+MAX_S_STEP = 0.2  # largest change of ks / kn per iteration (nu moves ~0.1 with it)
 
 # Prior rates per dimension: the lattice conversion of the targets is multiplied by these
 # (like MatDEM's rate vector) for the first iteration, and the initial slopes of the unknown
@@ -147,23 +148,32 @@ def initial_jacobian(dim: int) -> tuple[np.ndarray, np.ndarray]:
     return J, free
 
 
-def broyden(J, free, du, dy):
+#: smallest change of a free unknown (s, or ln rho_s) that a secant may learn from: the
+#: measurements repeat to ~1e-3 (nu) / ~1 % (strengths) between packings of neighbouring
+#: parameters, so a smaller step's secant is mostly noise
+MIN_SECANT_STEP = 0.05
+
+
+def broyden(J, free, du, dy, min_step=MIN_SECANT_STEP):
     """Broyden's update restricted to the unknown entries: each row ``k`` gets
-    ``J[k] += (dy_k - J[k] du) du_free / |du_free|^2`` over its free columns."""
+    ``J[k] += (dy_k - J[k] du) du_free / |du_free|^2`` over its free columns, when the free
+    part of the step is at least ``min_step`` (smaller steps teach noise)."""
     J = J.copy()
     for k in range(J.shape[0]):
         cols = free[k]
         n2 = float((du[cols] ** 2).sum())
-        if n2 > 1e-12:
+        if n2 >= min_step ** 2:
             J[k, cols] += (dy[k] - J[k] @ du) * du[cols] / n2
     return J
 
 
 def sane(J):
-    """Keep the slopes physical (signs known from the law) so one noisy secant cannot send the
-    Newton step astray: d nu/ds < 0, d ln Cu/d ln rho > d ln Tu/d ln rho."""
+    """Keep the slopes within their physical range so one noisy secant cannot send the Newton
+    step astray. Measured on random 2-D packings (docs/calibration.md): d nu/ds about -0.5
+    (kept in [-1.2, -0.2]: a near-zero slope asks for a huge change of s), d ln E/ds in
+    [-1, 3]; d ln Cu/d ln rho > d ln Tu/d ln rho."""
     J = J.copy()
-    J[1, 1] = min(J[1, 1], -0.02)
+    J[1, 1] = float(np.clip(J[1, 1], -1.2, -0.2))
     J[0, 1] = float(np.clip(J[0, 1], -1.0, 3.0))
     J[2, 3] = float(np.clip(J[2, 3], -0.2, 0.9))
     J[3, 3] = float(np.clip(J[3, 3], J[2, 3] + 0.1, 1.5))
@@ -190,7 +200,7 @@ def newton_step(J, u, y, y_target, pinned=None, prefer="Cu"):
     else:
         du = np.linalg.solve(J, r)
     du[[0, 2, 3]] = np.clip(du[[0, 2, 3]], -math.log(3.0), math.log(3.0))
-    du[1] = float(np.clip(du[1], -0.4, 0.4))
+    du[1] = float(np.clip(du[1], -MAX_S_STEP, MAX_S_STEP))
     un = u + du
     un[1] = float(np.clip(un[1], *S_RANGE))
     un[3] = float(np.clip(un[3], *np.log(RHO_RANGE)))
@@ -292,6 +302,7 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
     pinned = {}
     notes = []
     prev = None
+    best_pt = None  # (u, y, score, iteration) of the best iteration so far
     for it in range(1, int(spec.iterations) + 1):
         el = from_unknowns(u, mu)
         m = measure_fn(spec, el, out / "iterations" / f"{it:02d}")
@@ -309,6 +320,14 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
             progress(it, rec)
         if rec["score"] <= 1.0:
             break
+        if best_pt is not None and rec["score"] > best_pt[2]:
+            # a step that made things worse still taught the secant; the next step starts
+            # again from the best point (a trust-region fallback: no iteration is wasted
+            # drifting from a bad point)
+            rec["restart_from"] = best_pt[3]
+            u, y = best_pt[0].copy(), best_pt[1].copy()
+        else:
+            best_pt = (u.copy(), y.copy(), rec["score"], it)
         prev = (u.copy(), y.copy())
         # reachability: the Newton step wants s or rho_s beyond the searched range while
         # already at its bound -> pin it there and match the others

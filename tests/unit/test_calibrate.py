@@ -3,6 +3,7 @@
 import json
 import math
 
+import numpy as np
 import pytest
 
 from geodem.labtests import calibrate as C
@@ -92,3 +93,32 @@ def test_save_calibration_keeps_the_file_and_loads_back(tmp_path):
     mat = load_material(p)
     assert set(mat.calibrated) == {"2d", "3d"}
     assert mat.calibrated["2d"]["element"]["kn_per_d"] == pytest.approx(out["element"]["kn_per_d"])
+
+
+def test_a_noisy_secant_cannot_flatten_the_poisson_slope():
+    J, free = C.initial_jacobian(2)
+    # s moved by 0.1 and nu (noise) by 0.001: the raw secant says d nu/ds = -0.01
+    du = [0.0, 0.1, 0.0, 0.0]
+    J2 = C.sane(C.broyden(J, free, np.array(du), np.array([0.0, -0.001, 0.0, 0.0])))
+    assert J2[1, 1] == pytest.approx(-0.2)  # clamped: a flat slope would ask for a huge step
+
+
+def test_steps_below_the_noise_teach_nothing():
+    J, free = C.initial_jacobian(2)
+    J2 = C.broyden(J, free, np.array([0.0, 0.01, 0.0, 0.0]), np.array([0.0, 0.3, 0.0, 0.0]))
+    assert np.array_equal(J, J2)
+
+
+def test_after_a_worse_iteration_the_next_starts_from_the_best(tmp_path):
+    calls = []
+
+    def flaky(spec_, el, folder):
+        calls.append(el)
+        m = synthetic(spec_, el, folder)
+        if len(calls) == 2:  # one bad measurement (as a bad step would give)
+            m = dict(m, E=m["E"] * 0.3, nu=0.02, Cu=m["Cu"] * 0.4)
+        return m
+
+    out = C.calibrate(spec(), tmp_path, measure_fn=flaky)
+    assert out["history"][1].get("restart_from") == 1
+    assert out["converged"] and out["iterations"] <= 6

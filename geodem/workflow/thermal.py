@@ -1,0 +1,537 @@
+"""Thermal workflow pieces: the ``heat`` step, the rod check and the ``borehole_plate`` model.
+
+* step ``heat``: couples the thermal field (:class:`geodem.fields.thermal.ThermalField`, equations
+  in its module docstring and docs/thermal.md) to the model, or, when an earlier ``heat`` step
+  attached it, updates its parameters and fixed-temperature groups; then advances ``duration``
+  seconds of *thermal* time. The thermal clock runs ``time_scale`` times faster than the
+  mechanical one (heat diffuses over hours, elastic waves cross a specimen in microseconds): give
+  ``nsteps`` (mechanical time steps; ``time_scale = duration / (nsteps dt)``) or ``time_scale``
+  (``nsteps = duration / (time_scale dt)``, default ``time_scale = 1``). The step records every
+  ``samples``-th of its time steps to ``<name>_temperature.csv``: step, mechanical time, thermal
+  time, T min / max / mean [K], bonds broken since the step started, and the mean T of each
+  probe group; it draws ``<name>_temperature.png`` (probe temperatures against thermal time; map
+  of element temperatures with the cracks) and puts ``T_max``, ``T_min``, ``T_mean``,
+  ``thermal_time`` and ``broken_bonds`` (bonds broken during the step) into summary.json. A run
+  resumed from a checkpoint finds the field in the checkpoint and does not attach it twice.
+
+* step ``thermal_rod_check``: compares the temperatures of a 1-D bonded chain (``lattice_block``
+  with ``counts: [N, 1]``; groups ``hot`` and ``cold`` at its ends, held at ``T1`` and ``T2`` by
+  the preceding heat step, the rest starting at ``T0``) with the Fourier series of the heat
+  equation (:func:`geodem.fields.thermal.rod_solution`) at the field's thermal time. The chain is
+  a rod of cross-section ``A`` (the contact face of the conductance formula), length ``L`` (the
+  distance between the two fixed end elements) and bulk density ``rho_b = m / (A d)``, so its
+  diffusivity is ``D = k / (rho_b c) = h d^2 / (m c)``. Result ``rel_error = max_i |T_i -
+  T_exact(x_i, t)| / max(|T1 - T0|, |T2 - T0|, |T1 - T2|)`` over the free elements (also
+  ``fourier_number = D t / L^2``); profile in ``thermal_rod_profile.csv`` and
+  ``thermal_rod.png``.
+
+* model ``borehole_plate`` (2-D): a bonded random plate (``make_specimen`` box, calibrated or
+  converted material) with a circular hole at its centre; groups ``heater`` (the elements within
+  ``heater_depth`` d_mean of the hole wall), ``edge`` (within ``edge_depth`` d_mean of the outer
+  faces) and ``specimen`` (the rest). Loose elements (fewer than 2 bonds) are removed and the
+  plate is balanced after the hole is cut.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from typing import Annotated, Literal, Optional
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
+from geodem.workflow.schema import (
+    DOF_NAMES,
+    F,
+    Int,
+    ModelBase,
+    Name,
+    StepBase,
+    register_model,
+    register_step,
+    unknown_group,
+)
+
+Kelvin = Annotated[float, Field(gt=0)]
+DEPOSIT_NAMES = ("viscous", "break_normal", "break_shear", "friction")
+ROD_PROFILE = "thermal_rod_profile.csv"
+
+
+def _csv_rows(path, step):
+    with open(path) as f:
+        rows = list(csv.reader(f))[1:]
+    return [[float(v) for v in r] for r in rows if int(float(r[0])) <= step]
+
+
+def _write_csv(path, header, rows):
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows(rows)
+
+
+def _append_csv(path, row):
+    with open(path, "a", newline="") as f:
+        csv.writer(f).writerow(row)
+
+
+def _mpl():
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        return plt
+    except Exception:  # noqa: BLE001 - plots are optional
+        return None
+
+
+def plane_axes(x) -> list:
+    """The two axes of largest extent (2-D: x, y; 3-D: the widest pair), for maps."""
+    if x.shape[1] == 2:
+        return [0, 1]
+    ext = np.ptp(x, axis=0)
+    return sorted(np.argsort(-ext)[:2].tolist())
+
+
+def temperature_map(ax, x, r, T, crack_xy=None, vmin=None, vmax=None, title=""):
+    """Elements coloured by temperature (discs to scale in data units) and crack midpoints."""
+    from matplotlib.collections import EllipseCollection
+
+    coll = EllipseCollection(2 * r, 2 * r, np.zeros_like(r), units="xy", offsets=x,
+                             offset_transform=ax.transData, cmap="inferno")
+    coll.set_array(T)
+    coll.set_clim(vmin if vmin is not None else T.min(), vmax if vmax is not None else T.max())
+    ax.add_collection(coll)
+    if crack_xy is not None and len(crack_xy):
+        ax.plot(crack_xy[:, 0], crack_xy[:, 1], "o", ms=2.5, mfc="cyan", mec="k", mew=0.3,
+                label=f"broken bonds ({len(crack_xy)})")
+        ax.legend(loc="upper right", fontsize="small")
+    pad = float(r.max())
+    ax.set_xlim(x[:, 0].min() - pad, x[:, 0].max() + pad)
+    ax.set_ylim(x[:, 1].min() - pad, x[:, 1].max() + pad)
+    ax.set_aspect("equal")
+    ax.set_title(title)
+    return coll
+
+
+# ============================================================================ heat
+@register_step("heat")
+class Heat(StepBase):
+    """Couple the thermal field (conduction over bonds and touching contacts, fixed-temperature
+    groups, thermal expansion of the radii, optional deposition of mechanical heat) and advance
+    ``duration`` seconds of thermal time. Writes <name>_temperature.csv and .png; adds T_max,
+    T_min, T_mean, thermal_time and broken_bonds to summary.json."""
+
+    example = {"kind": "heat", "duration": 5.0, "nsteps": 20, "conductivity": 3.0,
+               "specific_heat": 800.0, "alpha": 1e-5, "fixed": {"top": 350.0}}
+    duration: float = F(..., unit="s", gt=0, description="Thermal time to advance")
+    nsteps: Optional[Int] = F(None, ge=1,
+                              description="Mechanical time steps over the duration (sets "
+                                          "time_scale = duration / (nsteps dt))")
+    time_scale: Optional[float] = F(None, gt=0,
+                                    description="Thermal seconds per mechanical second (default "
+                                                "1 when nsteps is not given)")
+    conductivity: float = F(..., unit="W/(m K)", ge=0, description="Thermal conductivity k")
+    specific_heat: float = F(..., unit="J/(kg K)", gt=0, description="Specific heat c")
+    alpha: float = F(0.0, unit="1/K", ge=-1e-3, le=1e-3,
+                     description="Linear thermal expansion coefficient (R = R0 (1 + alpha (T - "
+                                 "T_ref)))")
+    T_ref: float = F(293.15, unit="K", gt=0, description="Temperature of the built radii")
+    T_initial: Optional[float] = F(None, unit="K", gt=0,
+                                   description="Initial temperature of every element (default "
+                                               "T_ref; ignored when an earlier heat step "
+                                               "attached the field)")
+    initial: dict[Name, Kelvin] = F({}, description="Initial temperatures of groups [K] (after "
+                                                    "T_initial)")
+    fixed: dict[Name, Kelvin] = F({}, description="Fixed-temperature groups [K]; the rest is "
+                                                  "free, the model's surface insulated")
+    ramp: float = F(0.0, unit="s", ge=0,
+                    description="Thermal time over which each fixed group goes linearly from "
+                                "its present temperature to its value (0: at once)")
+    unbonded_factor: float = F(0.0, ge=0, le=1,
+                               description="Conductance of a touching unbonded contact / that "
+                                           "of a bond")
+    area_factor: float = F(1.0, gt=0, le=100,
+                           description="Multiplies every conductance (k_eff calibration of "
+                                       "random packings)")
+    deposit_heat: list[Literal[DEPOSIT_NAMES]] = F(  # type: ignore[valid-type]
+        [], description="Mechanical heat deposited into the temperatures: viscous, "
+                        "break_normal, break_shear, friction")
+    every: Int = F(1, ge=1, le=100000, description="Couple every N mechanical time steps")
+    probes: Optional[list[Name]] = F(None, description="Groups whose mean temperature is "
+                                                       "recorded (default: every group but all)")
+    samples: Int = F(50, ge=2, le=100000, description="Records over the step")
+    plot: bool = F(True, description="Draw <name>_temperature.png (needs matplotlib)")
+
+    @model_validator(mode="after")
+    def _one(self):
+        if self.nsteps is not None and self.time_scale is not None:
+            raise ValueError("give at most one of nsteps and time_scale (the other follows "
+                             "from duration)")
+        return self
+
+    def check(self, cfg, groups):
+        out = []
+        for key in ("initial", "fixed"):
+            for g in getattr(self, key):
+                if g not in groups:
+                    out.append(((key, g), unknown_group(g, groups)))
+        for k, g in enumerate(self.probes or []):
+            if g not in groups:
+                out.append((("probes", k), unknown_group(g, groups)))
+        return out
+
+    def planned_steps(self, plan):
+        if self.nsteps is not None:
+            return int(self.nsteps)
+        ts = self.time_scale if self.time_scale is not None else 1.0
+        return max(1, int(math.ceil(self.duration / (ts * plan.dt) - 1e-9)))
+
+    def _time_scale(self, dt):
+        if self.nsteps is not None:
+            return self.duration / (self.nsteps * dt)
+        return self.time_scale if self.time_scale is not None else 1.0
+
+    def field_kwargs(self, dt) -> dict:
+        return dict(k=self.conductivity, c=self.specific_heat, alpha=self.alpha, T_ref=self.T_ref,
+                    T0=self.T_initial, initial=dict(self.initial), fixed=dict(self.fixed),
+                    unbonded_factor=self.unbonded_factor, area_factor=self.area_factor,
+                    deposit=list(self.deposit_heat), time_scale=self._time_scale(dt),
+                    ramp=self.ramp, every=self.every)
+
+    def _attach(self, ctx):
+        from geodem.fields.thermal import ThermalField
+
+        sim = ctx.sim
+        kw = self.field_kwargs(sim.state.dt)
+        have = [f for f in sim.fields if f.kind == "thermal"]
+        if not have:
+            f = ThermalField(**kw)
+            sim.add_field(f)
+            return f
+        f = have[0]
+        new = ThermalField(**kw)  # validates
+        for key in ("k", "c", "alpha", "T_ref", "unbonded_factor", "area_factor", "deposit",
+                    "time_scale"):
+            setattr(f, key, getattr(new, key))
+        f.cap[:] = sim.state.m * f.c
+        if f.deposit:
+            f.qlast[:] = f._heat_sum(sim.state)
+            f._e0 = float(sim.state.e0)
+        f.set_fixed(new.fixed, new.ramp)
+        if new.every != f.every:
+            ctx.log(f"the thermal field couples every {f.every} steps (set by the first heat "
+                    f"step); every = {new.every} ignored")
+        ctx.log("the thermal field was attached by an earlier heat step: its temperatures carry "
+                "on (T_initial and initial ignored), parameters and fixed groups updated")
+        return f
+
+    def execute(self, ctx):
+        from geodem.core import groups
+
+        sim = ctx.sim
+        st = ctx.state
+        if ctx.resumed and any(f.kind == "thermal" for f in sim.fields):
+            field = sim.field("thermal")
+        else:
+            field = self._attach(ctx)
+        probes = self.probes if self.probes is not None else \
+            [g for g in st.groups if g != "all"]
+        idx = {g: groups.members(st, g) for g in probes}
+        name = ctx.step.name
+        path = ctx.out_dir / f"{name}_temperature.csv"
+        header = ["step", "time", "thermal_time", "T_min", "T_max", "T_mean", "broken_bonds"] + \
+            [f"T_{g}" for g in probes]
+        rows = _csv_rows(path, st.step) if ctx.resumed and path.exists() else []
+        _write_csv(path, header, rows)
+        t_start = (ctx.start_step + 0.5) * st.dt
+
+        def broken():
+            log = sim.crack_log()
+            return log[log["time"] > t_start]
+
+        def record():
+            s = sim.state
+            T = field.T
+            row = [s.step, s.time, field.time, float(T.min()), float(T.max()), float(T.mean()),
+                   len(broken())] + [float(T[i].mean()) if i.size else math.nan
+                                     for i in idx.values()]
+            rows.append(row)
+            _append_csv(path, row)
+
+        if not rows:
+            record()
+        total = self.planned_steps(ctx.plan)
+        chunk = max(1, total // self.samples)
+        done = (st.step - ctx.start_step) // chunk * chunk
+        while done < total:
+            done = min(total, done + chunk)
+            ctx.advance(done)
+            record()
+        s = ctx.state
+        log = broken()
+        res = dict(field.summary())
+        res.update({"broken_bonds": int(len(log)), "time_scale": field.time_scale,
+                    "probes": {g: float(field.T[i].mean()) for g, i in idx.items() if i.size}})
+        ctx.summary.update({k: res[k] for k in ("T_max", "T_min", "T_mean", "thermal_time",
+                                                 "broken_bonds")})
+        ctx.log(f"heat: thermal time {field.time:.4g} s ({field.substeps} sub-steps in all), "
+                f"T from {res['T_min']:.5g} to {res['T_max']:.5g} K, {len(log)} bonds broken "
+                f"during the step")
+        if self.plot and ctx.cfg.outputs.plots:
+            a = np.array(rows, float)
+            ax2 = plane_axes(s.x)
+            xy = s.x[:, ax2]
+            cxy = 0.5 * (s.x[log["i"]] + s.x[log["j"]])[:, ax2] if len(log) else None
+            res["plot"] = ctx.plot(f"{name}_temperature.png", lambda p: _plot_heat(
+                p, a, header, probes, xy, s.r, field.T, cxy, [DOF_NAMES[k] for k in ax2],
+                field.T.min(), field.T.max()))
+        return res
+
+
+def _plot_heat(path, a, header, probes, xy, r, T, cxy, names, vmin, vmax):
+    plt = _mpl()
+    if plt is None:
+        return None
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.6), gridspec_kw={"width_ratios": [1, 1.1]})
+    t = a[:, 2]
+    for k, g in enumerate(probes):
+        a1.plot(t, a[:, 7 + k], label=g)
+    a1.plot(t, a[:, 4], "k--", lw=0.8, label="max")
+    a1.plot(t, a[:, 5], "k:", lw=0.8, label="mean")
+    a1.set_xlabel("thermal time [s]")
+    a1.set_ylabel("temperature [K]")
+    a1.legend(fontsize="small")
+    a1.grid(alpha=0.3)
+    ext = np.ptp(xy, axis=0) + 2.0 * float(r.max())
+    if ext.max() > 4.0 * ext.min():  # a bar or strip: the profile along it reads better
+        k = int(np.argmax(ext))
+        a2.plot(xy[:, k], T, "C3o", ms=3)
+        a2.set_xlabel(f"{names[k]} [m]")
+        a2.set_ylabel("temperature [K]")
+        a2.set_title(f"temperature at t = {t[-1]:.4g} s")
+        a2.grid(alpha=0.3)
+    else:
+        coll = temperature_map(a2, xy, r, T, cxy, vmin, vmax,
+                               f"temperature at t = {t[-1]:.4g} s")
+        a2.set_xlabel(f"{names[0]} [m]")
+        a2.set_ylabel(f"{names[1]} [m]")
+        fig.colorbar(coll, ax=a2, label="T [K]", shrink=0.85)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+# ============================================================================ rod check
+@register_step("thermal_rod_check")
+class ThermalRodCheck(StepBase):
+    """Compare a heated 1-D chain (lattice_block counts [N, 1], groups hot and cold held at
+    T1 and T2 by a preceding heat step) with the Fourier series of the heat equation at the
+    field's thermal time. Adds rel_error (max |T - T_exact| / max temperature step) and
+    fourier_number to summary.json; writes thermal_rod_profile.csv and thermal_rod.png."""
+
+    example = {"kind": "thermal_rod_check"}
+    example_model = {"type": "lattice_block", "dim": 2, "counts": [12, 1], "diameter": 0.01,
+                     "material": "rock", "groups": {"hot": {"side": "xmin"},
+                                                    "cold": {"side": "xmax"}}}
+    hot: Name = F("hot", description="Group held at T1 (x = 0 of the rod)")
+    cold: Name = F("cold", description="Group held at T2 (x = L)")
+    tolerance: float = F(0.02, gt=0, description="rel_error above this is reported as failed")
+    terms: Int = F(400, ge=10, le=100000, description="Terms of the Fourier series")
+    plot: bool = F(True, description="Draw thermal_rod.png (needs matplotlib)")
+
+    def check(self, cfg, groups):
+        out = [((key,), unknown_group(getattr(self, key), groups))
+               for key in ("hot", "cold") if getattr(self, key) not in groups]
+        mine = next((i for i, s in enumerate(cfg.steps) if s is self), len(cfg.steps))
+        if not any(s.kind == "heat" for s in cfg.steps[:mine]):
+            out.append((("kind",), "thermal_rod_check needs a heat step before it (the field "
+                                   "it checks)"))
+        return out
+
+    def execute(self, ctx):
+        from geodem.core import groups
+        from geodem.fields.thermal import conductance_pairs, contact_area, rod_solution
+        from geodem.workflow.errors import RunFailure
+
+        sim = ctx.sim
+        st = ctx.state
+        if not any(f.kind == "thermal" for f in sim.fields):
+            raise RunFailure("thermal_rod_check: no thermal field (run a heat step first)")
+        f = sim.field("thermal")
+        for g in (self.hot, self.cold):
+            if g not in f.fixed:
+                raise RunFailure(f"thermal_rod_check: group {g!r} is not held at a fixed "
+                                 f"temperature (fixed: {f.fixed})")
+        i, j, h = conductance_pairs(sim, f)
+        deg = np.bincount(i, minlength=st.n) + np.bincount(j, minlength=st.n)
+        if deg.max() > 2 or i.size != st.n - 1:
+            raise RunFailure("thermal_rod_check needs a 1-D chain (each element conducting to "
+                             "at most two neighbours, e.g. lattice_block counts: [N, 1]); "
+                             f"this model has {i.size} conducting pairs for {st.n} elements")
+        hot, cold = groups.members(st, self.hot), groups.members(st, self.cold)
+        x0, x1 = st.x[hot].mean(axis=0), st.x[cold].mean(axis=0)
+        e = (x1 - x0) / np.linalg.norm(x1 - x0)
+        L = float(np.linalg.norm(x1 - x0))
+        s = (st.x - x0) @ e
+        lengths = np.linalg.norm(st.x[j] - st.x[i], axis=1)
+        d = float(lengths.mean())
+        m = float(st.m.mean())
+        D = float(h.mean()) * d * d / (m * f.c)
+        A = float(contact_area(st.r[i], st.r[j], st.dim, st.thickness).mean()) \
+            if not f._expanded else float(contact_area(f.r0[i], f.r0[j], st.dim,
+                                                       st.thickness).mean())
+        T0, T1, T2 = f.T0, f.fixed[self.hot], f.fixed[self.cold]
+        t = f.time
+        free = f.fixed_mask == 0
+        exact = rod_solution(s, t, L, D, T0, T1, T2, self.terms)
+        scale = max(abs(T1 - T0), abs(T2 - T0), abs(T1 - T2))
+        if scale == 0:
+            raise RunFailure("thermal_rod_check: T0, T1 and T2 are equal; nothing to compare")
+        err = np.abs(f.T - exact)
+        rel = float(err[free].max() / scale)
+        res = {"rel_error": rel, "fourier_number": D * t / (L * L), "diffusivity": D,
+               "length": L, "thermal_time": t, "bulk_density": m / (A * d),
+               "conductance": float(h.mean()), "T0": T0, "T1": T1, "T2": T2,
+               "passed": bool(rel <= self.tolerance), "tolerance": self.tolerance}
+        ctx.summary.update({"rel_error": rel, "fourier_number": res["fourier_number"]})
+        ctx.log(f"rod: Fo = D t / L^2 = {res['fourier_number']:.4g} (D = {D:.4g} m^2/s, "
+                f"L = {L:.4g} m, t = {t:.4g} s): max |T - T_exact| = {rel:.3e} x "
+                f"{scale:.4g} K ({'within' if res['passed'] else 'ABOVE'} {self.tolerance})")
+        order = np.argsort(s)
+        _write_csv(ctx.out_dir / ROD_PROFILE, ["position", "T", "T_exact", "fixed"],
+                   [[float(s[k]), float(f.T[k]), float(exact[k]), int(f.fixed_mask[k])]
+                    for k in order])
+        if self.plot and ctx.cfg.outputs.plots:
+            xs = np.linspace(0.0, L, 400)
+            curves = [(tt, rod_solution(xs, tt, L, D, T0, T1, T2, self.terms))
+                      for tt in (0.25 * t, 0.5 * t)]
+            res["plot"] = ctx.plot("thermal_rod.png", lambda p: _plot_rod(
+                p, s[order], f.T[order], xs, rod_solution(xs, t, L, D, T0, T1, T2, self.terms),
+                curves, t, rel, res["fourier_number"]))
+        return res
+
+
+def _plot_rod(path, s, T, xs, exact, curves, t, rel, fo):
+    plt = _mpl()
+    if plt is None:
+        return None
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    for tt, c in curves:
+        ax.plot(xs, c, color="0.7", lw=1, label=f"Fourier, t = {tt:.3g} s")
+    ax.plot(xs, exact, "C0-", lw=1.5, label=f"Fourier, t = {t:.3g} s (Fo = {fo:.3g})")
+    ax.plot(s, T, "C3o", ms=3.5, label=f"elements (max error {rel:.2%})")
+    ax.set_xlabel("position along the rod [m]")
+    ax.set_ylabel("temperature [K]")
+    ax.set_title("1-D conduction rod: DEM chain against the Fourier series")
+    ax.legend(fontsize="small")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+# ============================================================================ borehole plate
+@register_model("borehole_plate")
+class BoreholePlate(ModelBase):
+    """A 2-D bonded random plate with a circular hole at its centre (packed, cut and cemented
+    by make_specimen; the hole cut out, loose elements removed, balanced), groups heater (ring
+    at the hole wall), edge (outer faces) and specimen (the rest)."""
+
+    size_field = "size"
+    example = {"type": "borehole_plate", "size": [0.05, 0.05], "hole_radius": 0.006,
+               "d_mean": 0.005, "material": "rock"}
+    dim: Literal[2] = F(2, description="Dimension (2-D only)")
+    size: list[float] = F([0.1, 0.1], unit="m", min_length=2, max_length=2,
+                          description="Plate edge lengths")
+    hole_radius: float = F(0.01, unit="m", gt=0, description="Radius of the central hole")
+    d_mean: float = F(0.004, unit="m", gt=0, description="Mean element diameter")
+    distri_rate: float = F(0.2, ge=0, lt=1, description="Size spread of the packing "
+                                                        "(make_specimen distri_rate)")
+    seed: Optional[int] = F(None, description="Packing seed (default: metadata.seed)")
+    material: Name = F(..., description="Material name (rock properties, per-size or direct "
+                                        "element parameters, or a library material)")
+    heater_depth: float = F(1.0, gt=0, le=10,
+                            description="Heater ring width from the hole wall, in d_mean")
+    edge_depth: float = F(1.0, gt=0, le=10,
+                          description="Edge layer depth from the outer faces, in d_mean")
+
+    def n_elements(self):
+        area = float(np.prod(self.size)) - math.pi * self.hole_radius ** 2
+        return max(1, int(0.84 * max(area, 0.0) / (math.pi / 4 * self.d_mean ** 2)))
+
+    def bytes_per_element(self):
+        return state_bytes_per_element(2, 8) + 3000
+
+    def material_refs(self):
+        return [(("material",), self.material)]
+
+    def group_names(self):
+        return ["all", "specimen", "heater", "edge"]
+
+    def n_across(self):
+        return float(max(self.size) / self.d_mean) if self.size else 1.0
+
+    def check(self, cfg):
+        from geodem.workflow.labtests import box_size_problems, specimen_material
+
+        out = box_size_problems(self.size, 2, self.d_mean)
+        if not out:
+            free = 0.5 * min(self.size) - self.hole_radius
+            if free < 3 * self.d_mean:
+                out.append((("hole_radius",), f"the hole leaves {free:g} m of rock to the "
+                                              f"nearest face; allowed: at least 3 d_mean = "
+                                              f"{3 * self.d_mean:g} m"))
+        if self.hole_radius < self.d_mean:
+            out.append((("hole_radius",), f"the hole must be at least one d_mean = "
+                                          f"{self.d_mean:g} m in radius"))
+        if self.material in cfg.materials:
+            try:
+                specimen_material(cfg, self.material, 2, self.d_mean)
+            except ValueError as exc:
+                out.append((("material",), str(exc)))
+        return out
+
+    def build(self, cfg):
+        from geodem.build.shapes import subset_state
+        from geodem.build.specimen import make_specimen
+        from geodem.core import groups as grp
+        from geodem.core.engine import Simulation
+        from geodem.workflow.brazilian import prune_loose
+        from geodem.workflow.labtests import specimen_material
+
+        sm = specimen_material(cfg, self.material, 2, self.d_mean)
+        seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
+        try:
+            st, rep = make_specimen("box", self.size, self.d_mean, self.distri_rate,
+                                    sm.material, 2, seed, element=sm.element)
+        except ValueError as exc:
+            raise BuildError(("size",), str(exc)) from None
+        c = 0.5 * np.asarray(self.size, float)
+        st = subset_state(st, np.linalg.norm(st.x - c, axis=1) > self.hole_radius)
+        n_across = self.n_across()
+        st, removed = prune_loose(st, 2, n_across=n_across)
+        if st.n < 10:
+            raise BuildError(("size",), f"only {st.n} elements left: make the plate larger or "
+                                        f"d_mean smaller")
+        if not removed:  # cutting released the hole's bonds: settle once
+            Simulation(st, monitor_every=0).balance(n_across)
+        st.v[:] = 0.0
+        lo, hi = st.x.min(axis=0), st.x.max(axis=0)
+        edge = np.any((st.x <= lo + self.edge_depth * self.d_mean)
+                      | (st.x >= hi - self.edge_depth * self.d_mean), axis=1)
+        heater = np.linalg.norm(st.x - c, axis=1) <= self.hole_radius + \
+            self.heater_depth * self.d_mean
+        grp.add_group(st, "edge", edge & ~heater)
+        grp.add_group(st, "heater", heater)
+        st.step, st.time = 0, 0.0
+        info = {"diameter": self.d_mean, "size": list(self.size), "centre": c.tolist(),
+                "hole_radius": self.hole_radius, "material": sm.label,
+                "material_warnings": list(sm.warnings), "loose_removed": removed,
+                "specimen_report": {k: v for k, v in rep.items() if k != "packing"}}
+        return BuiltModel(st, st.x.copy(), n_across, info)
