@@ -69,3 +69,30 @@ def test_specimen_shapes():
     assert rep["unbalanced_ratio"] < 1e-3
     with pytest.raises(ValueError):
         make_specimen("cylinder", [10 * D, 10 * D], D, dim=2)
+
+
+def test_relax_lifts_a_platen_the_released_packing_grows_into():
+    # the packing of a 2x finer UCS specimen grew by its compaction strain into the platen
+    # stiffen had lifted 2 d above it: all overlaps stayed locked in and every bond broke
+    from geodem.build import packing
+
+    lo, hi = np.zeros(2), np.array([10 * D, 10 * D])
+    x, r = packing.random_placement((lo, hi), porosity=0.1, d_mean=D, distri_rate=0.2, seed=2)
+    st = packing.deposition_state(x, r, (lo, hi), rho=2500.0)
+    packing.deposit(st, backend="numba")
+    packing.compact(st, backend="numba")
+    stf = packing.stiffen(st, 100.0, backend="numba")
+    sim = stf["sim"]
+    # put the platen back onto the surface, 0.2 diameters deep: it now holds the packing in
+    packing._move_platen_to_surface(st, -0.2 * D)
+    from geodem.core import neighbors
+
+    neighbors.build_rows(st)
+    sim.backend.push()
+    sim.run(50)
+    assert packing._platen_touches_sample(st)
+    target = 1e-5 * D
+    rel = packing.relax(st, target, sim=sim)
+    assert rel["platen_lifts"] >= 1
+    assert rel["max_overlap"] <= target
+    assert packing.sample_overlap(st) <= target

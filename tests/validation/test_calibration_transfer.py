@@ -43,10 +43,7 @@ def test_calibration_reproduces_at_its_resolution(sandstone, tmp_path):
     assert s["ucs"] == pytest.approx(cal["measured"]["Cu"], rel=1e-6)
 
 
-@pytest.mark.slow  # about 6 min on 2 cores (3,500 elements, 1.3e6 steps)
-@pytest.mark.xfail(strict=True, reason="measured 2026-11-24: the 2x finer specimen from "
-                   "make_specimen carries almost no load (axial stress ~1e3 Pa, E = 9.3e6 Pa "
-                   "vs 1.5e10): a specimen-build problem at d_mean = 2.5 mm, not yet diagnosed")
+@pytest.mark.slow  # about 4 min on 1 core (3,400 elements, 1.3e6 steps)
 def test_twice_finer_elements_give_the_same_E_and_UCS(sandstone, tmp_path):
     cal = sandstone.calibrated["2d"]
     d = cal["specimen"]["d_mean"]
