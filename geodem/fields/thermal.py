@@ -35,11 +35,12 @@ element than the lattice (2-D sandstone: ~3.8 against 6) and conduct less:
 Heat capacity is ``m c``, so the model's diffusivity is ``k / (rho_b c)`` with ``rho_b`` the bulk
 density the element masses give (mass / volume of the model).
 
-Time stepping: explicit (forward Euler) sub-steps of (1). With ``h <= min_i C_i / sum_j h_ij``
-(:meth:`ThermalField.stable_dt`; fixed-temperature elements excluded) every update is a convex
-combination of old temperatures: stable and free of new extrema (maximum principle; Gershgorin
-bounds the largest eigenvalue of ``C^-1 H`` by ``2 max sum h / C``, and Euler needs ``h
-lambda <= 2``). The field uses ``safety`` (0.5) x that bound.
+Time stepping: explicit (forward Euler) sub-steps ``s`` of (1). With
+``s <= min_i C_i / sum_j h_ij`` (:meth:`ThermalField.stable_dt`; fixed-temperature elements
+excluded) every update is a convex combination of old temperatures: stable and free of new
+extrema (maximum principle; Gershgorin bounds the largest eigenvalue of ``C^-1 H`` by
+``2 max sum h / C``, and Euler needs ``s lambda <= 2``). The field uses ``safety`` (0.5) x that
+bound.
 
 Per coupling (every ``every`` mechanical steps, ``span = every dt`` of mechanical time; the
 thermal clock advances ``time_scale x span``: ``time_scale`` > 1 accelerates heat flow against
@@ -57,7 +58,9 @@ the mechanics, valid while the mechanics stays quasi-static):
 3. thermal expansion ``R_i = R_i0 (1 + alpha (T_i - T_ref))`` written to the ``r`` column of
    ``props``. The springs' elastic energy changes with the radii at fixed positions; the change
    ``E_el(R_new) - E_el(R_old)`` of each element's share is booked as external work ``w_ext``, so
-   ``E_k + E_el + Q = E_0 + W`` still closes.
+   ``E_k + E_el + Q = E_0 + W`` still closes; the contact forces are then evaluated again at
+   the same positions (``dt = 0``: velocities, springs and heat unchanged; a bond the expansion
+   overstrains breaks now), so the next velocity-Verlet step starts from the new forces.
 
 References: Incropera & DeWitt, *Fundamentals of Heat and Mass Transfer* (finite-volume
 conduction, the explicit stability criterion); Carslaw & Jaeger, *Conduction of Heat in Solids*
@@ -67,8 +70,11 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
+from numba import prange
 
+from geodem.core.state import broken_code
 from geodem.fields import CoupledField, FieldStabilityError, register_field
 
 DEPOSIT = {"viscous": "q_visc", "break_normal": "q_break_n", "break_shear": "q_break_s",
@@ -78,116 +84,106 @@ FACE_3D = math.sqrt(2.0)  # rhombic dodecahedron face / r^2: d^2 / (2 sqrt 2) = 
 
 
 # ============================================================================ kernels
-def _kernels():
-    import numba
-    from numba import prange
+# compiled on first use, cached on disk (__pycache__) for the next processes
+_jit = numba.njit(parallel=True, fastmath=False, cache=True)
+_seq = numba.njit(fastmath=False, cache=True)
 
-    jit = numba.njit(parallel=True, fastmath=False, cache=False)
-    seq = numba.njit(fastmath=False, cache=False)
 
-    @jit
-    def conductances(x, r, r0, nbr, cstate, dim, thick, kfac, unb, hmat, hsum):
-        # (2): h_ij of every row entry [W/K] and its row sums
-        n, w = nbr.shape
-        for i in prange(n):
-            hs = 0.0
-            for k in range(w):
-                j = nbr[i, k]
-                if j < 0:
-                    for kk in range(k, w):
-                        hmat[i, kk] = 0.0
-                    break
-                d2 = 0.0
-                for a in range(dim):
-                    e = x[j, a] - x[i, a]
-                    d2 += e * e
-                dist = math.sqrt(d2)
-                h = 0.0
-                if cstate[i, k] == 1:
-                    f = 1.0
-                elif unb > 0.0 and dist < r[i] + r[j]:
-                    f = unb
+@_jit
+def conductances(x, r, r0, nbr, cstate, dim, thick, kfac, unb, hmat, hsum):
+    # (2): h_ij of every row entry [W/K] and its row sums
+    n, w = nbr.shape
+    for i in prange(n):
+        hs = 0.0
+        for k in range(w):
+            j = nbr[i, k]
+            if j < 0:
+                for kk in range(k, w):
+                    hmat[i, kk] = 0.0
+                break
+            d2 = 0.0
+            for a in range(dim):
+                e = x[j, a] - x[i, a]
+                d2 += e * e
+            dist = math.sqrt(d2)
+            h = 0.0
+            if cstate[i, k] == 1:
+                f = 1.0
+            elif unb > 0.0 and dist < r[i] + r[j]:
+                f = unb
+            else:
+                f = 0.0
+            if f > 0.0 and dist > 0.0:
+                rij = 2.0 * r0[i] * r0[j] / (r0[i] + r0[j])
+                if dim == 2:
+                    t = thick if thick > 0.0 else 2.0 * rij
+                    area = FACE_2D * rij * t
                 else:
-                    f = 0.0
-                if f > 0.0 and dist > 0.0:
-                    rij = 2.0 * r0[i] * r0[j] / (r0[i] + r0[j])
-                    if dim == 2:
-                        t = thick if thick > 0.0 else 2.0 * rij
-                        area = FACE_2D * rij * t
-                    else:
-                        area = FACE_3D * rij * rij
-                    h = f * kfac * area / dist
-                hmat[i, k] = h
-                hs += h
-            hsum[i] = hs
+                    area = FACE_3D * rij * rij
+                h = f * kfac * area / dist
+            hmat[i, k] = h
+            hs += h
+        hsum[i] = hs
 
-    @seq
-    def stable(cap, hsum, fixed):
-        # min C_i / sum_j h_ij over the free elements that conduct (inf if none)
-        best = np.inf
-        for i in range(cap.shape[0]):
-            if fixed[i] == 0 and hsum[i] > 0.0:
-                v = cap[i] / hsum[i]
-                if v < best:
-                    best = v
-        return best
+@_seq
+def stable(cap, hsum, fixed):
+    # min C_i / sum_j h_ij over the free elements that conduct (inf if none)
+    best = np.inf
+    for i in range(cap.shape[0]):
+        if fixed[i] == 0 and hsum[i] > 0.0:
+            best = min(best, cap[i] / hsum[i])
+    return best
 
-    @seq
-    def hold(tt, t0, ramp, T, fixed, fstart, ftarget):
-        # fixed temperatures at thermal time tt: linear ramp from fstart to ftarget
-        frac = 1.0
+@_seq
+def hold(tt, t0, ramp, T, fixed, fstart, ftarget):
+    # fixed temperatures at thermal time tt: linear ramp from fstart to ftarget
+    frac = 1.0
+    if ramp > 0.0:
+        frac = min(1.0, max(0.0, (tt - t0) / ramp))
+    for i in range(T.shape[0]):
+        if fixed[i] != 0:
+            T[i] = fstart[i] + (ftarget[i] - fstart[i]) * frac
+
+@_jit
+def diffuse(nsub, h, T, cap, fixed, nbr, hmat, flux, tb, t0, ramp, fstart, ftarget):
+    # nsub forward-Euler sub-steps of (1) from thermal time tb
+    n, w = nbr.shape
+    for s in range(nsub):
         if ramp > 0.0:
-            frac = min(1.0, max(0.0, (tt - t0) / ramp))
-        for i in range(T.shape[0]):
-            if fixed[i] != 0:
-                T[i] = fstart[i] + (ftarget[i] - fstart[i]) * frac
-
-    @jit
-    def diffuse(nsub, h, T, cap, fixed, nbr, hmat, flux, tb, t0, ramp, fstart, ftarget):
-        # nsub forward-Euler sub-steps of (1) from thermal time tb
-        n, w = nbr.shape
-        for s in range(nsub):
-            if ramp > 0.0:
-                hold(tb + s * h, t0, ramp, T, fixed, fstart, ftarget)
-            for i in prange(n):
-                acc = 0.0
-                if fixed[i] == 0:
-                    ti = T[i]
-                    for k in range(w):
-                        j = nbr[i, k]
-                        if j < 0:
-                            break
-                        acc += hmat[i, k] * (T[j] - ti)
-                flux[i] = acc
-            for i in prange(n):
-                if fixed[i] == 0:
-                    T[i] += h * flux[i] / cap[i]
-        hold(tb + nsub * h, t0, ramp, T, fixed, fstart, ftarget)
-
-    @jit
-    def expand(T, r0, alpha, tref, props):
-        for i in prange(T.shape[0]):
-            props[i, 0] = r0[i] * (1.0 + alpha * (T[i] - tref))
-
-    @jit
-    def deposit(qsum, qlast, reset, T, cap, fixed):
-        for i in prange(T.shape[0]):
-            dq = qsum[i] if reset else qsum[i] - qlast[i]
+            hold(tb + s * h, t0, ramp, T, fixed, fstart, ftarget)
+        for i in prange(n):
+            acc = 0.0
             if fixed[i] == 0:
-                T[i] += dq / cap[i]
-            qlast[i] = qsum[i]
+                ti = T[i]
+                for k in range(w):
+                    j = nbr[i, k]
+                    if j < 0:
+                        break
+                    acc += hmat[i, k] * (T[j] - ti)
+            flux[i] = acc
+        for i in prange(n):
+            if fixed[i] == 0:
+                T[i] += h * flux[i] / cap[i]
+    hold(tb + nsub * h, t0, ramp, T, fixed, fstart, ftarget)
 
-    return conductances, stable, diffuse, expand, deposit, hold
+@_jit
+def expand(T, r0, alpha, tref, props):
+    for i in prange(T.shape[0]):
+        props[i, 0] = r0[i] * (1.0 + alpha * (T[i] - tref))
 
+@_jit
+def deposit(qsum, qlast, reset, T, cap, fixed):
+    for i in prange(T.shape[0]):
+        dq = qsum[i] if reset else qsum[i] - qlast[i]
+        if fixed[i] == 0:
+            T[i] += dq / cap[i]
+        qlast[i] = qsum[i]
 
-_K = None
+_K = (conductances, stable, diffuse, expand, deposit, hold)
 
 
 def kernels():
-    """The compiled kernels (compiled once per process)."""
-    global _K
-    if _K is None:
-        _K = _kernels()
+    """The kernels ``(conductances, stable, diffuse, expand, deposit, hold)``."""
     return _K
 
 
@@ -239,7 +235,8 @@ class ThermalField(CoupledField):
 
     reads = {"x": "m", "nbr": "1", "cstate": "1", "m": "kg", "props": "m (column r: radius)",
              "q_visc": "J", "q_break_n": "J", "q_break_s": "J", "q_fric": "J", "w_ext": "J"}
-    writes = {"props": "m (column r: radius)", "w_ext": "J"}
+    writes = {"props": "m (column r: radius)", "w_ext": "J",
+              "dx": "m (zeroed when the forces are re-evaluated after an expansion)"}
     safety = 0.5
 
     def __init__(self, k, c, alpha=0.0, T_ref=293.15, T0=None, initial=None, fixed=None,
@@ -420,6 +417,12 @@ class ThermalField(CoupledField):
         np.subtract(e1, self._ebuf, out=self._ebuf)
         st.w_ext += self._ebuf
         self._expanded = self.alpha != 0.0
+        # the stored accelerations belong to the old radii: evaluate the forces again at the
+        # same positions (dx = 0 and dt = 0: no velocity, spring or heat changes), so the next
+        # velocity-Verlet step starts from F(x, R_new) (without it the books drift by ~1e-2)
+        st.dx.fill(0.0)
+        b.push(("dx",))
+        b.force(0.0, broken_code(st.step, 1), broken_code(st.step, 2))
         return float(self._ebuf.sum())
 
     # ------------------------------------------------------------------ results
@@ -484,17 +487,17 @@ def effective_conductivity(sim, field, axis: int = 0, layer: float | None = None
     lap = sp.coo_matrix((np.concatenate([-h, -h]), (np.concatenate([i, j]),
                                                     np.concatenate([j, i]))), shape=(n, n))
     lap = (lap + sp.diags(np.bincount(i, h, n) + np.bincount(j, h, n))).tocsr()
-    un = np.flatnonzero(~known)
+    # clusters that touch neither layer (cut off by cracks, loose elements) carry no flux and
+    # would make the system singular: solve only for the elements connected to a layer
+    from scipy.sparse.csgraph import connected_components
+
+    _, comp = connected_components(lap, directed=False)
+    linked = np.isin(comp, np.unique(comp[known]))
+    un = np.flatnonzero(~known & linked)
     T = tk.copy()
     if un.size:
         rhs = -lap[un][:, np.flatnonzero(known)] @ tk[known]
-        sub = lap[un][:, un]
-        # isolated elements (no conducting contact) would make the system singular
-        diag = sub.diagonal()
-        ok = diag > 0
-        sol = np.zeros(un.size)
-        sol[ok] = spsolve(sub[ok][:, ok].tocsc(), rhs[ok])
-        T[un] = sol
+        T[un] = spsolve(lap[un][:, un].tocsc(), rhs)
     P = float((lap @ T)[hot].sum())
     L = float(xa[cold].mean() - xa[hot].mean())
     other = [a for a in range(st.dim) if a != axis]

@@ -14,10 +14,10 @@
   ``thermal_time`` and ``broken_bonds`` (bonds broken during the step) into summary.json. A run
   resumed from a checkpoint finds the field in the checkpoint and does not attach it twice.
 
-* step ``thermal_rod_check``: compares the temperatures of a 1-D bonded chain (``lattice_block``
-  with ``counts: [N, 1]``; groups ``hot`` and ``cold`` at its ends, held at ``T1`` and ``T2`` by
-  the preceding heat step, the rest starting at ``T0``) with the Fourier series of the heat
-  equation (:func:`geodem.fields.thermal.rod_solution`) at the field's thermal time. The chain is
+* step ``thermal_rod``: the ``heat`` step on a 1-D bonded chain (``lattice_block`` with
+  ``counts: [N, 1]``; groups ``hot`` and ``cold`` at its ends, fixed at ``T1`` and ``T2``, the
+  rest starting at ``T0 = T_initial``), then a comparison with the Fourier series of the heat
+  equation (:func:`geodem.fields.thermal.rod_solution`) at the thermal time reached. The chain is
   a rod of cross-section ``A`` (the contact face of the conductance formula), length ``L`` (the
   distance between the two fixed end elements) and bulk density ``rho_b = m / (A d)``, so its
   diffusivity is ``D = k / (rho_b c) = h d^2 / (m c)``. Result ``rel_error = max_i |T_i -
@@ -96,8 +96,24 @@ def plane_axes(x) -> list:
     return sorted(np.argsort(-ext)[:2].tolist())
 
 
+def crack_faces(x, r, i, j, axes=(0, 1)):
+    """Crack faces of broken bonds ``(i, j)`` for a map: segments ``(k, 2, 2)`` across each bond
+    at its contact point, as long as the smaller element's diameter, in the plane ``axes``."""
+    i, j = np.asarray(i, int), np.asarray(j, int)
+    if i.size == 0:
+        return np.zeros((0, 2, 2))
+    xi, xj = x[i][:, list(axes)], x[j][:, list(axes)]
+    b = xj - xi
+    n = b / np.maximum(np.linalg.norm(b, axis=1, keepdims=True), 1e-300)
+    ri, rj = r[i], r[j]
+    c = xi + n * (ri / (ri + rj))[:, None] * np.linalg.norm(b, axis=1, keepdims=True)
+    t = np.stack([-n[:, 1], n[:, 0]], axis=1) * np.minimum(ri, rj)[:, None]
+    return np.stack([c - t, c + t], axis=1)
+
+
 def temperature_map(ax, x, r, T, crack_xy=None, vmin=None, vmax=None, title=""):
-    """Elements coloured by temperature (discs to scale in data units) and crack midpoints."""
+    """Elements coloured by temperature (discs to scale in data units) and cracks (segments
+    ``(k, 2, 2)``, see :func:`crack_faces`)."""
     from matplotlib.collections import EllipseCollection
 
     coll = EllipseCollection(2 * r, 2 * r, np.zeros_like(r), units="xy", offsets=x,
@@ -106,8 +122,11 @@ def temperature_map(ax, x, r, T, crack_xy=None, vmin=None, vmax=None, title=""):
     coll.set_clim(vmin if vmin is not None else T.min(), vmax if vmax is not None else T.max())
     ax.add_collection(coll)
     if crack_xy is not None and len(crack_xy):
-        ax.plot(crack_xy[:, 0], crack_xy[:, 1], "o", ms=2.5, mfc="cyan", mec="k", mew=0.3,
-                label=f"broken bonds ({len(crack_xy)})")
+        from matplotlib.collections import LineCollection
+
+        # a broken bond is drawn as its crack face: a segment across the bond at the contact
+        ax.add_collection(LineCollection(crack_xy, colors="cyan", linewidths=1.6,
+                                         label=f"broken bonds ({len(crack_xy)})"))
         ax.legend(loc="upper right", fontsize="small")
     pad = float(r.max())
     ax.set_xlim(x[:, 0].min() - pad, x[:, 0].max() + pad)
@@ -139,11 +158,13 @@ class Heat(StepBase):
     alpha: float = F(0.0, unit="1/K", ge=-1e-3, le=1e-3,
                      description="Linear thermal expansion coefficient (R = R0 (1 + alpha (T - "
                                  "T_ref)))")
-    T_ref: float = F(293.15, unit="K", gt=0, description="Temperature of the built radii")
+    T_ref: Optional[float] = F(None, unit="K", gt=0,
+                               description="Temperature at which the radii are the built radii "
+                                           "(default T_initial, else 293.15)")
     T_initial: Optional[float] = F(None, unit="K", gt=0,
                                    description="Initial temperature of every element (default "
-                                               "T_ref; ignored when an earlier heat step "
-                                               "attached the field)")
+                                               "T_ref, else 293.15; ignored when an earlier heat "
+                                               "step attached the field)")
     initial: dict[Name, Kelvin] = F({}, description="Initial temperatures of groups [K] (after "
                                                     "T_initial)")
     fixed: dict[Name, Kelvin] = F({}, description="Fixed-temperature groups [K]; the rest is "
@@ -188,7 +209,7 @@ class Heat(StepBase):
         if self.nsteps is not None:
             return int(self.nsteps)
         ts = self.time_scale if self.time_scale is not None else 1.0
-        return max(1, int(math.ceil(self.duration / (ts * plan.dt) - 1e-9)))
+        return max(1, math.ceil(self.duration / (ts * plan.dt) - 1e-9))
 
     def _time_scale(self, dt):
         if self.nsteps is not None:
@@ -196,7 +217,9 @@ class Heat(StepBase):
         return self.time_scale if self.time_scale is not None else 1.0
 
     def field_kwargs(self, dt) -> dict:
-        return dict(k=self.conductivity, c=self.specific_heat, alpha=self.alpha, T_ref=self.T_ref,
+        t_ref = self.T_ref if self.T_ref is not None else \
+            (self.T_initial if self.T_initial is not None else 293.15)
+        return dict(k=self.conductivity, c=self.specific_heat, alpha=self.alpha, T_ref=t_ref,
                     T0=self.T_initial, initial=dict(self.initial), fixed=dict(self.fixed),
                     unbonded_factor=self.unbonded_factor, area_factor=self.area_factor,
                     deposit=list(self.deposit_heat), time_scale=self._time_scale(dt),
@@ -214,8 +237,10 @@ class Heat(StepBase):
             return f
         f = have[0]
         new = ThermalField(**kw)  # validates
-        for key in ("k", "c", "alpha", "T_ref", "unbonded_factor", "area_factor", "deposit",
-                    "time_scale"):
+        keys = ["k", "c", "alpha", "unbonded_factor", "area_factor", "deposit", "time_scale"]
+        if self.T_ref is not None:  # else the field keeps the radii's reference temperature
+            keys.append("T_ref")
+        for key in keys:
             setattr(f, key, getattr(new, key))
         f.cap[:] = sim.state.m * f.c
         if f.deposit:
@@ -247,6 +272,8 @@ class Heat(StepBase):
             [f"T_{g}" for g in probes]
         rows = _csv_rows(path, st.step) if ctx.resumed and path.exists() else []
         _write_csv(path, header, rows)
+        if path.name not in ctx.runner.files:
+            ctx.runner.files.append(path.name)
         t_start = (ctx.start_step + 0.5) * st.dt
 
         def broken():
@@ -274,7 +301,8 @@ class Heat(StepBase):
         s = ctx.state
         log = broken()
         res = dict(field.summary())
-        res.update({"broken_bonds": int(len(log)), "time_scale": field.time_scale,
+        res.update({"broken_bonds": len(log), "cracks_tensile": int((log["type"] == 1).sum()),
+                    "cracks_shear": int((log["type"] == 2).sum()), "time_scale": field.time_scale,
                     "probes": {g: float(field.T[i].mean()) for g, i in idx.items() if i.size}})
         ctx.summary.update({k: res[k] for k in ("T_max", "T_min", "T_mean", "thermal_time",
                                                  "broken_bonds")})
@@ -285,7 +313,7 @@ class Heat(StepBase):
             a = np.array(rows, float)
             ax2 = plane_axes(s.x)
             xy = s.x[:, ax2]
-            cxy = 0.5 * (s.x[log["i"]] + s.x[log["j"]])[:, ax2] if len(log) else None
+            cxy = crack_faces(s.x, s.r, log["i"], log["j"], ax2) if len(log) else None
             res["plot"] = ctx.plot(f"{name}_temperature.png", lambda p: _plot_heat(
                 p, a, header, probes, xy, s.r, field.T, cxy, [DOF_NAMES[k] for k in ax2],
                 field.T.min(), field.T.max()))
@@ -326,78 +354,84 @@ def _plot_heat(path, a, header, probes, xy, r, T, cxy, names, vmin, vmax):
     return path
 
 
-# ============================================================================ rod check
-@register_step("thermal_rod_check")
-class ThermalRodCheck(StepBase):
-    """Compare a heated 1-D chain (lattice_block counts [N, 1], groups hot and cold held at
-    T1 and T2 by a preceding heat step) with the Fourier series of the heat equation at the
-    field's thermal time. Adds rel_error (max |T - T_exact| / max temperature step) and
-    fourier_number to summary.json; writes thermal_rod_profile.csv and thermal_rod.png."""
+# ============================================================================ rod
+@register_step("thermal_rod")
+class ThermalRod(Heat):
+    """The heat step on a 1-D bonded chain (lattice_block counts [N, 1]; groups hot and cold at
+    its ends, held at T1 and T2 by fixed), then a comparison with the Fourier series of the
+    heat equation at the thermal time reached. Adds rel_error (max |T - T_exact| / max
+    temperature step) and fourier_number to summary.json; writes thermal_rod_profile.csv and
+    thermal_rod.png besides the heat step's files."""
 
-    example = {"kind": "thermal_rod_check"}
+    kind: Literal["thermal_rod"] = F(..., description="kind: thermal_rod")
+    example = {"kind": "thermal_rod", "duration": 2000.0, "nsteps": 20, "conductivity": 2.5,
+               "specific_heat": 900.0, "T_initial": 300.0,
+               "fixed": {"hot": 400.0, "cold": 300.0}}
     example_model = {"type": "lattice_block", "dim": 2, "counts": [12, 1], "diameter": 0.01,
                      "material": "rock", "groups": {"hot": {"side": "xmin"},
                                                     "cold": {"side": "xmax"}}}
     hot: Name = F("hot", description="Group held at T1 (x = 0 of the rod)")
     cold: Name = F("cold", description="Group held at T2 (x = L)")
-    tolerance: float = F(0.02, gt=0, description="rel_error above this is reported as failed")
+    tolerance: float = F(0.02, gt=0, description="rel_error above this is reported as failed "
+                                                 "(passed: false in the results)")
     terms: Int = F(400, ge=10, le=100000, description="Terms of the Fourier series")
-    plot: bool = F(True, description="Draw thermal_rod.png (needs matplotlib)")
 
     def check(self, cfg, groups):
-        out = [((key,), unknown_group(getattr(self, key), groups))
-               for key in ("hot", "cold") if getattr(self, key) not in groups]
-        mine = next((i for i, s in enumerate(cfg.steps) if s is self), len(cfg.steps))
-        if not any(s.kind == "heat" for s in cfg.steps[:mine]):
-            out.append((("kind",), "thermal_rod_check needs a heat step before it (the field "
-                                   "it checks)"))
+        out = super().check(cfg, groups)
+        for key in ("hot", "cold"):
+            g = getattr(self, key)
+            if g not in groups:
+                out.append(((key,), unknown_group(g, groups)))
+            elif g not in self.fixed:
+                out.append((("fixed",), (f"the rod's {key} end {g!r} needs a fixed "
+                                         f"temperature (fixed: {{{g}: T}})")))
+        if self.hot == self.cold:
+            out.append((("cold",), "hot and cold must be different groups"))
         return out
 
     def execute(self, ctx):
+        res = super().execute(ctx)
+        res.update(self.compare(ctx))
+        return res
+
+    def compare(self, ctx) -> dict:
+        """rel_error of the chain against :func:`geodem.fields.thermal.rod_solution`."""
         from geodem.core import groups
         from geodem.fields.thermal import conductance_pairs, contact_area, rod_solution
         from geodem.workflow.errors import RunFailure
 
         sim = ctx.sim
         st = ctx.state
-        if not any(f.kind == "thermal" for f in sim.fields):
-            raise RunFailure("thermal_rod_check: no thermal field (run a heat step first)")
         f = sim.field("thermal")
-        for g in (self.hot, self.cold):
-            if g not in f.fixed:
-                raise RunFailure(f"thermal_rod_check: group {g!r} is not held at a fixed "
-                                 f"temperature (fixed: {f.fixed})")
         i, j, h = conductance_pairs(sim, f)
         deg = np.bincount(i, minlength=st.n) + np.bincount(j, minlength=st.n)
         if deg.max() > 2 or i.size != st.n - 1:
-            raise RunFailure("thermal_rod_check needs a 1-D chain (each element conducting to "
-                             "at most two neighbours, e.g. lattice_block counts: [N, 1]); "
-                             f"this model has {i.size} conducting pairs for {st.n} elements")
+            raise RunFailure("thermal_rod needs a 1-D chain (each element conducting to at "
+                             "most two neighbours, e.g. lattice_block counts: [N, 1]); this "
+                             f"model has {i.size} conducting pairs for {st.n} elements")
         hot, cold = groups.members(st, self.hot), groups.members(st, self.cold)
         x0, x1 = st.x[hot].mean(axis=0), st.x[cold].mean(axis=0)
-        e = (x1 - x0) / np.linalg.norm(x1 - x0)
         L = float(np.linalg.norm(x1 - x0))
-        s = (st.x - x0) @ e
-        lengths = np.linalg.norm(st.x[j] - st.x[i], axis=1)
-        d = float(lengths.mean())
+        s = (st.x - x0) @ ((x1 - x0) / L)
+        d = float(np.linalg.norm(st.x[j] - st.x[i], axis=1).mean())
         m = float(st.m.mean())
-        D = float(h.mean()) * d * d / (m * f.c)
-        A = float(contact_area(st.r[i], st.r[j], st.dim, st.thickness).mean()) \
-            if not f._expanded else float(contact_area(f.r0[i], f.r0[j], st.dim,
-                                                       st.thickness).mean())
+        D = float(h.mean()) * d * d / (m * f.c)  # = k / (rho_b c), rho_b = m / (A d)
+        A = float(contact_area(f.r0[i], f.r0[j], st.dim, st.thickness).mean()) * f.area_factor
         T0, T1, T2 = f.T0, f.fixed[self.hot], f.fixed[self.cold]
         t = f.time
-        free = f.fixed_mask == 0
-        exact = rod_solution(s, t, L, D, T0, T1, T2, self.terms)
+        if f.ramp > 0:
+            raise RunFailure("thermal_rod compares with ends held from t = 0: ramp must be 0")
         scale = max(abs(T1 - T0), abs(T2 - T0), abs(T1 - T2))
         if scale == 0:
-            raise RunFailure("thermal_rod_check: T0, T1 and T2 are equal; nothing to compare")
-        err = np.abs(f.T - exact)
-        rel = float(err[free].max() / scale)
+            raise RunFailure("thermal_rod: T_initial and the two end temperatures are equal; "
+                             "nothing to compare")
+        exact = rod_solution(s, t, L, D, T0, T1, T2, self.terms)
+        free = f.fixed_mask == 0
+        rel = float(np.abs(f.T - exact)[free].max() / scale)
         res = {"rel_error": rel, "fourier_number": D * t / (L * L), "diffusivity": D,
-               "length": L, "thermal_time": t, "bulk_density": m / (A * d),
-               "conductance": float(h.mean()), "T0": T0, "T1": T1, "T2": T2,
-               "passed": bool(rel <= self.tolerance), "tolerance": self.tolerance}
+               "length": L, "bulk_density": m / (A * d), "conductance": float(h.mean()),
+               "T0": T0, "T1": T1, "T2": T2, "passed": bool(rel <= self.tolerance),
+               "tolerance": self.tolerance}
         ctx.summary.update({"rel_error": rel, "fourier_number": res["fourier_number"]})
         ctx.log(f"rod: Fo = D t / L^2 = {res['fourier_number']:.4g} (D = {D:.4g} m^2/s, "
                 f"L = {L:.4g} m, t = {t:.4g} s): max |T - T_exact| = {rel:.3e} x "
@@ -406,11 +440,12 @@ class ThermalRodCheck(StepBase):
         _write_csv(ctx.out_dir / ROD_PROFILE, ["position", "T", "T_exact", "fixed"],
                    [[float(s[k]), float(f.T[k]), float(exact[k]), int(f.fixed_mask[k])]
                     for k in order])
+        ctx.runner.files.append(ROD_PROFILE)
         if self.plot and ctx.cfg.outputs.plots:
             xs = np.linspace(0.0, L, 400)
             curves = [(tt, rod_solution(xs, tt, L, D, T0, T1, T2, self.terms))
                       for tt in (0.25 * t, 0.5 * t)]
-            res["plot"] = ctx.plot("thermal_rod.png", lambda p: _plot_rod(
+            res["rod_plot"] = ctx.plot("thermal_rod.png", lambda p: _plot_rod(
                 p, s[order], f.T[order], xs, rod_solution(xs, t, L, D, T0, T1, T2, self.terms),
                 curves, t, rel, res["fourier_number"]))
         return res
@@ -484,12 +519,12 @@ class BoreholePlate(ModelBase):
         if not out:
             free = 0.5 * min(self.size) - self.hole_radius
             if free < 3 * self.d_mean:
-                out.append((("hole_radius",), f"the hole leaves {free:g} m of rock to the "
-                                              f"nearest face; allowed: at least 3 d_mean = "
-                                              f"{3 * self.d_mean:g} m"))
+                out.append((("hole_radius",), (f"the hole leaves {free:g} m of rock to the "
+                                               f"nearest face; allowed: at least 3 d_mean = "
+                                               f"{3 * self.d_mean:g} m")))
         if self.hole_radius < self.d_mean:
-            out.append((("hole_radius",), f"the hole must be at least one d_mean = "
-                                          f"{self.d_mean:g} m in radius"))
+            out.append((("hole_radius",), (f"the hole must be at least one d_mean = "
+                                           f"{self.d_mean:g} m in radius")))
         if self.material in cfg.materials:
             try:
                 specimen_material(cfg, self.material, 2, self.d_mean)

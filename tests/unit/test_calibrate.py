@@ -131,3 +131,14 @@ def test_noisy_measurements_do_not_derail_the_calibration(tmp_path):
 
     out = C.calibrate(spec(), tmp_path, measure_fn=noisy)
     assert out["converged"] and out["iterations"] <= 6
+
+
+def test_solve_1d_reports_a_saturated_function():
+    # ln(Cu/Tu) flat (2.1, 2.12) over a factor e^1.1 of rho_s, target 3.0: saturated
+    x, beyond = C.solve_1d([0.0, 1.1], [2.1, 2.12], 3.0, 0.6, (0.05, 1.5), (-3.0, 3.9), 1.1,
+                           saturation=0.1)
+    assert beyond and x == pytest.approx(1.1)
+    # still rising: keep stepping
+    x, beyond = C.solve_1d([0.0, 1.1], [2.1, 2.5], 3.0, 0.6, (0.05, 1.5), (-3.0, 3.9), 1.1,
+                           saturation=0.1)
+    assert not beyond and x > 1.1
