@@ -7,6 +7,8 @@
     geodem run FILE.yaml -o DIR [--backend B] [--set a.b=c ...] [--dry-run] [--resume]
                [--stop-after-steps N] [--overwrite] [--no-progress] [-v]
     geodem validate FILE.yaml [--set a.b=c ...] [--backend B]
+    geodem sweep FILE.yaml --param a.b=1,2,3 [--param ...] [--zip] [--seeds N]
+                 [--scheduler ADDRESS | --workers N] [--resume | --overwrite] -o DIR
     geodem schema [-o FILE]
 
 Backend choice for a run: ``--backend`` > the workflow's ``backend:`` key (``geodem run``) >
@@ -588,10 +590,13 @@ def _float_list(value: Optional[str], name: str, integer=False):
     "KIND is 'ucs': runs WORKFLOW (default workflows/ucs.yaml) for every number of elements "
     "across the height (--across) and time-step fraction (--dt-fractions); writes study.json "
     "(wall time, E and UCS errors against the material's targets per point) and "
-    "speed_accuracy.png into -o DIR, and names the fastest point within --tolerance."))
+    "speed_accuracy.png into -o DIR, and names the fastest point within --tolerance.\n\n"
+    "KIND 'stability': measures the critical time step of small lattice models (undamped "
+    "velocity Verlet) against 2/omega_max and geodem's refusal bound; writes stability.json and "
+    "stability_limit.png into -o DIR."))
 @_guard
 def study_cmd(
-    kind: Annotated[str, typer.Argument(metavar="KIND", help="ucs")],
+    kind: Annotated[str, typer.Argument(metavar="KIND", help="ucs or stability")],
     out: Annotated[str, typer.Option("-o", "--out", help="Output directory.")],
     workflow: Annotated[str, typer.Option("--workflow", help="UCS workflow file.")] =
     "workflows/ucs.yaml",
@@ -609,8 +614,23 @@ def study_cmd(
 ):
     from geodem.labtests.study import ucs_study
 
+    if kind == "stability":
+        from geodem.labtests.stability import stability_study
+
+        con = _out()
+
+        def said(r):
+            p = r["predicted"]
+            con.print(f"{r['model']}: 2/omega_max {p:.4g} s; diverges above "
+                      f"{r['measured'] / p:.4f} x; engine stops at {r['engine_stops'] / p:.4f} x; "
+                      f"refusal bound {r['gershgorin'] / p:.3f} x; default "
+                      f"{r['default'] / p:.3f} x", highlight=False)
+
+        stability_study(out, backend=backend or "numba", progress=said)
+        con.print(f"wrote stability.json, stability_limit.png to {out}", highlight=False)
+        return
     if kind != "ucs":
-        _fail(f"study KIND {kind!r}: allowed: ucs", USER_ERROR)
+        _fail(f"study KIND {kind!r}: allowed: ucs, stability", USER_ERROR)
     n = _float_list(across, "--across", integer=True)
     f = _float_list(fractions, "--dt-fractions")
     if any(v > 0.2 for v in f):
@@ -635,6 +655,91 @@ def study_cmd(
     else:
         con.print(f"no point within {tolerance:.0%}", highlight=False)
     con.print(f"wrote study.json, speed_accuracy.png to {out}", highlight=False)
+
+
+@app.command("sweep", help=(
+    "Run a workflow once per combination of parameter values, on Dask.\n\n"
+    "Every --param KEY=V1,V2,... (a --set path and YAML values, separated by ',' outside "
+    "brackets, or by ';' when the values contain commas: 'model.counts=[10,10];[20,20]') is "
+    "one axis; the members are their Cartesian product (--zip: the n-th values together), "
+    "crossed with metadata.seed = 0..N-1 by --seeds N. Every member is validated first. Each "
+    "runs in DIR/members/<hash12>/ (its config hash; identical workflows share one); writes "
+    "DIR/members.json, DIR/results.csv and DIR/summary.json. Runs on a local cluster of "
+    "--workers processes, or on the Dask scheduler at --scheduler ADDRESS.\n\n"
+    "Exit status: 0 every member completed, 1 a member failed, 2 invalid input (nothing "
+    "written), 130 interrupted (results so far written; continue with --resume)."))
+@_guard
+def sweep_cmd(
+    file: Annotated[str, typer.Argument(metavar="FILE.yaml", help="Workflow file.")],
+    out: Annotated[str, typer.Option("-o", "--out", help="Sweep directory (created).")],
+    params: Annotated[Optional[list[str]], typer.Option(
+        "--param", metavar="KEY=V1,V2,...",
+        help="A parameter and its values, e.g. --param steps.oscillate.nsteps=100,200 "
+             "(repeatable; VALUE is YAML as for --set; separate values with ';' when they "
+             "contain commas).")] = None,
+    zip_: Annotated[bool, typer.Option(
+        "--zip", help="Pair the n-th values of every --param instead of the Cartesian "
+                      "product (equal numbers of values).")] = False,
+    seeds: Annotated[Optional[int], typer.Option(
+        "--seeds", min=1, metavar="N",
+        help="Monte-Carlo ensemble: every member once per metadata.seed = 0..N-1.")] = None,
+    sets: Annotated[Optional[list[str]], typer.Option(
+        "--set", metavar="KEY=VALUE", help="Override a value in every member (as for "
+                                           "geodem run).")] = None,
+    scheduler: Annotated[Optional[str], typer.Option(
+        "--scheduler", metavar="ADDRESS",
+        help="Address of a running Dask scheduler, e.g. tcp://10.0.0.5:8786. \\[default: a "
+             "local cluster]")] = None,
+    workers: Annotated[Optional[int], typer.Option(
+        "--workers", min=1, metavar="N",
+        help="Worker processes of the local cluster. \\[default: usable cores, at most the "
+             "number of members to run]")] = None,
+    numba_threads: Annotated[int, typer.Option(
+        "--numba-threads", min=1, metavar="N",
+        help="NUMBA_NUM_THREADS of every member.")] = 1,
+    backend: Annotated[Optional[str], typer.Option(
+        "--backend", callback=_parse_backend,
+        help="auto, numba, numpy or cupy. \\[default: the workflow's backend, else "
+             "$GEODEM_BACKEND, else auto; resolved on this machine]")] = None,
+    resume: Annotated[bool, typer.Option(
+        "--resume", help="Continue the sweep in -o DIR: completed members are skipped, "
+                         "interrupted ones continue from their checkpoint, failed ones run "
+                         "again.")] = False,
+    overwrite: Annotated[bool, typer.Option(
+        "--overwrite", help="Delete the sweep in -o DIR and start again.")] = False,
+    no_progress: Annotated[bool, typer.Option(
+        "--no-progress", help="No progress bar (one line per finished member).")] = False,
+):
+    from geodem.sweep import SweepInterrupted, run_sweep
+
+    con = _out()
+    err = _err()
+
+    def report(m, rec):
+        vals = ", ".join(f"{k}={v}" for k, v in m.values.items())
+        what = "skipped (complete)" if rec.get("skipped") else rec.get("status", "?")
+        wall = rec.get("wall_s")
+        line = f"{m.key} {vals}: {what}" + (f", {wall:.1f} s" if wall is not None else "")
+        if rec.get("error") and rec.get("status") != "ok":
+            line += f": {str(rec['error']).splitlines()[0]}"
+        con.print(escape(line), highlight=False, soft_wrap=True)
+
+    try:
+        code, s = run_sweep(file, out, params or [], zip_=zip_, seeds=seeds, backend=backend,
+                            scheduler=scheduler, workers=workers, numba_threads=numba_threads,
+                            resume=resume, overwrite=overwrite, sets=_parse_sets(sets),
+                            on_member=report, bar=not no_progress and err.is_terminal,
+                            console=err)
+    except SweepInterrupted as exc:
+        s = exc.summary
+        err.print(f"interrupted: {s['completed']} of {s['members']} members complete; results "
+                  f"so far in {escape(out)}; continue with --resume", highlight=False)
+        raise typer.Exit(130) from None
+    con.print(f"{s['members']} members: {s['completed']} completed ({s['skipped']} skipped), "
+              f"{s['failed']} failed; wall time {s['wall_time_s']:.1f} s on {escape(s['scheduler'])}"
+              f"; wrote results.csv, summary.json to {escape(out)}", highlight=False)
+    if code:
+        raise typer.Exit(code)
 
 
 @app.command("validate", help=(

@@ -97,15 +97,23 @@ class Simulation:
     overlap_limit: largest allowed overlap as a fraction of the smaller radius.
     monitor_every: steps between energy-growth and overlap checks (0 = never); must be a
         multiple of ``check_every``.
+    allow_unstable_dt: skip the refusal of a ``dt`` above the (conservative) stability bound;
+        only for studies that measure where the integration fails
+        (:mod:`geodem.labtests.stability`): the run then stops with InstabilityError.
     """
 
     def __init__(self, state, backend=None, dt=None, dt_fraction=timestep.DEFAULT_FRACTION,
-                 check_every=10, overlap_limit=0.5, monitor_every=1000):
+                 check_every=10, overlap_limit=0.5, monitor_every=1000,
+                 allow_unstable_dt=False):
         validate_state(state)
         self.state = state
         if dt is None:
             dt = state.dt if state.dt > 0 else timestep.default_dt(state, dt_fraction)
-        timestep.check_dt(state, dt)
+        if allow_unstable_dt:
+            if not (dt > 0.0 and math.isfinite(dt)):
+                raise ValueError(f"time step dt must be a positive finite number [s], got {dt}")
+        else:
+            timestep.check_dt(state, dt)
         state.dt = float(dt)
         self.check_every = int(check_every)
         self.overlap_limit = overlap_limit
@@ -187,8 +195,11 @@ class Simulation:
                 neighbors.build_rows(s)
                 self.rebuilds += 1
                 b.push()
-                return
-        self._harvest()
+            else:
+                self._harvest()
+        else:
+            self._harvest()
+        # a rebuild must not skip the monitor: a run blowing up rebuilds at every check
         if self.monitor_every and s.step % self.monitor_every == 0:
             self.check_energy()
             self.check_overlaps()
