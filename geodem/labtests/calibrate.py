@@ -169,14 +169,16 @@ def _slope(xs, ys, x, prior, rng):
 
 def interpolate(xs, ys, x, prior, rng) -> float:
     """Value at ``x`` of a smooth function sampled at ``(xs, ys)``: linear between the nearest
-    samples on either side, else extrapolated from the nearest one with :func:`_slope`."""
+    samples on either side (the latest of samples at the same ``x``: the function also drifts
+    with the other variables), else extrapolated from the nearest one with :func:`_slope`."""
     xs, ys = np.asarray(xs, float), np.asarray(ys, float)
     left, right = xs <= x, xs >= x
     if left.any() and right.any():
-        i = np.flatnonzero(left)[np.argmax(xs[left])]
-        j = np.flatnonzero(right)[np.argmin(xs[right])]
+        # among samples at the same x the latest wins: it is the nearest in the other variables
+        i = int(np.flatnonzero(left & (xs == xs[left].max()))[-1])
+        j = int(np.flatnonzero(right & (xs == xs[right].min()))[-1])
         if xs[j] - xs[i] < 1e-12:
-            return float(0.5 * (ys[i] + ys[j]))
+            return float(ys[max(i, j)])
         w = (x - xs[i]) / (xs[j] - xs[i])
         return float((1 - w) * ys[i] + w * ys[j])
     k = int(np.argmin(np.abs(xs - x)))

@@ -142,3 +142,9 @@ def test_solve_1d_reports_a_saturated_function():
     x, beyond = C.solve_1d([0.0, 1.1], [2.1, 2.5], 3.0, 0.6, (0.05, 1.5), (-3.0, 3.9), 1.1,
                            saturation=0.1)
     assert not beyond and x > 1.1
+
+
+def test_interpolate_takes_the_latest_of_samples_at_the_same_point():
+    # rho_s held at its bound while the strength level is corrected: the newest sample counts
+    assert C.interpolate([3.9, 3.9, 3.9], [3.81, 3.66, 3.59], 3.9, 0.75, (-0.2, 1.5)) == 3.59
+    assert C.interpolate([0.0, 1.0], [0.0, 2.0], 0.25, 1.0, (0.1, 5.0)) == pytest.approx(0.5)
