@@ -116,6 +116,11 @@ class Balance(StepBase):
                                                           "model's largest count)")
     nsteps: Optional[Int] = F(None, ge=1, description="Time steps (default 50 x n_across)")
     standard_damping: bool = F(True, description="Apply the standard damping first")
+    tolerance: float = F(1e-2, gt=0, le=1, description="Unbalanced-force ratio that counts as "
+                                                       "equilibrium")
+    unconverged: Literal["warn", "fail"] = F(
+        "warn", description="Above the tolerance at the end: warn (summary.json warnings) or "
+                            "fail the run (exit 1, checkpoint kept)")
 
     def _n(self, plan):
         return float(self.n_across if self.n_across is not None else plan.n_across)
@@ -135,7 +140,22 @@ class Balance(StepBase):
         ctx.advance(self.planned_steps(ctx.plan))
         ratio = ctx.sim.unbalanced_force_ratio()
         ctx.log(f"unbalanced-force ratio after the balance: {ratio:.3e}")
-        return {"unbalanced_force_ratio": ratio, "n_across": self._n(ctx.plan)}
+        converged = bool(ratio <= self.tolerance)
+        if not converged:
+            eta = float(ctx.state.eta.mean())
+            msg = (f"step {self.name!r}: not in equilibrium after {self.planned_steps(ctx.plan)} "
+                   f"time steps: unbalanced-force ratio {ratio:.3g} > tolerance "
+                   f"{self.tolerance:g} (mean damping {eta:.3g} kg/s); give more nsteps, or "
+                   f"use the standard damping (standard_damping: true, n_across = the elements "
+                   f"across the loading direction)")
+            if self.unconverged == "fail":
+                from geodem.workflow.errors import RunFailure
+
+                raise RunFailure(msg)
+            ctx.log("warning: " + msg)
+            ctx.summary.setdefault("warnings", []).append(msg)
+        return {"unbalanced_force_ratio": ratio, "n_across": self._n(ctx.plan),
+                "converged": converged}
 
 
 # ============================================================================ boundary decrees

@@ -115,6 +115,24 @@ def test_a_new_step_kind_plugs_in(plugin_step, tmp_path):
     assert "steps[0].speed" in str(err.value) and "> 0 [m/s]" in str(err.value)
 
 
+@pytest.mark.parametrize("mode", ["warn", "fail"])
+def test_balance_without_enough_damping_is_flagged(tmp_path, mode):
+    # no damping and 20 steps: the block dropped under gravity is nowhere near equilibrium
+    model = dict(LATTICE, gravity=[0.0, -9.81])
+    steps = [{"kind": "fix", "group": "base"},
+             {"kind": "balance", "standard_damping": False, "nsteps": 20, "unconverged": mode}]
+    code, s = run_workflow(workflow(tmp_path, steps, model=model), tmp_path / "out",
+                           echo=False, progress=False)
+    if mode == "warn":
+        assert code == 0
+        assert s["results"]["balance"]["converged"] is False
+        assert s["results"]["balance"]["unbalanced_force_ratio"] > 1e-2
+        assert any("not in equilibrium" in w for w in s["warnings"])
+    else:
+        assert code == 1 and s["status"] == "failed"
+        assert "not in equilibrium" in s["error"] and "nsteps" in s["error"]
+
+
 def test_balance_reaches_equilibrium_under_gravity(tmp_path):
     model = dict(LATTICE, gravity=[0.0, -9.81])
     steps = [{"kind": "fix", "group": "base"}, {"kind": "balance"}]
@@ -123,6 +141,7 @@ def test_balance_reaches_equilibrium_under_gravity(tmp_path):
     assert code == 0
     assert s["steps"] == 300  # 50 x 6 elements across
     assert s["results"]["balance"]["unbalanced_force_ratio"] < 1e-2
+    assert s["results"]["balance"]["converged"] is True
     # the base carries the weight of the block
     import h5py
 
