@@ -1,13 +1,26 @@
-"""Specimen shapes (boolean masks of element centres) and cutting a state to a shape.
+"""Specimen and model shapes (boolean masks of element centres) and cutting a state to a shape.
 
 Shapes select elements by their CENTRE (MatDEM's convention): an element is kept when its centre
-lies inside the shape, so boundary elements stick out by up to one radius.
+lies inside the shape (boundary included), so boundary elements stick out by up to one radius.
+Every shape has ``mask(x) -> bool (N,)`` for positions ``x`` (N, dim), vectorised over the
+elements, and ``bounds -> (lo, hi)`` (``dim`` values each; ``+-inf`` where unbounded).
 
+Primitives
 * :class:`Box` ``(lo, hi)``: axis-aligned box, 2-D or 3-D.
 * :class:`Cylinder` ``(center, radius, z0, z1)``: 3-D cylinder with its axis along z through the
   point ``center`` (x, y), from ``z0`` to ``z1``.
 * :class:`Disc` ``(center, radius)``: 2-D disc; in 3-D a cylinder section (Brazilian disc) with its
   axis along ``axis`` (default ``"y"``) and thickness ``thickness`` centred on ``center`` (3 values).
+* :class:`Sphere` ``(center, radius)``: ball ``|x - c| <= R`` (a disc in 2-D).
+* :class:`Polygon` ``(vertices)``: 2-D simple polygon (even-odd rule, edges included); with
+  ``axis, z0, z1`` a 3-D prism: the polygon in the plane of the two other axes (in x, y, z
+  order: ``axis="z"`` -> (x, y), ``"y"`` -> (x, z), ``"x"`` -> (y, z)) extruded along ``axis``
+  from ``z0`` to ``z1``.
+* :class:`HalfSpace` ``(point, normal)``: ``(x - point) . n <= 0``, ``n`` the OUTWARD normal.
+
+Combinations (also as operators)
+* :class:`Union` ``a | b``: inside either; :class:`Intersection` ``a & b``: inside both;
+  :class:`Difference` ``a - b``: inside ``a`` and not inside ``b``. Any depth of nesting.
 
 ``cut(obj, shape)`` returns the mask for positions, or a new :class:`State` holding only the
 elements inside (see :func:`subset_state`).
@@ -20,9 +33,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from geodem.core.state import ELEMENT_SCALAR, ELEMENT_VEC, ACCUMULATORS, State
+from geodem.geo.errors import GeometryError
 
-__all__ = ["Box", "Cylinder", "Disc", "box_mask", "cylinder_mask", "disc_mask", "cut",
-           "subset_state"]
+__all__ = ["Shape", "Box", "Cylinder", "Disc", "Sphere", "Polygon", "HalfSpace", "Union",
+           "Intersection", "Difference", "box_mask", "cylinder_mask", "disc_mask",
+           "polygon_mask", "polygon_area", "cut", "subset_state"]
+
+_AXES = "xyz"
 
 
 def _pos(x):
@@ -67,8 +84,71 @@ def disc_mask(x, center, radius, axis="y", thickness=None) -> np.ndarray:
     return (rr <= radius * radius) & (np.abs(x[:, k] - c[k]) <= 0.5 * thickness)
 
 
+def polygon_area(vertices) -> float:
+    """Signed area of a polygon (shoelace formula), > 0 for counter-clockwise vertices:
+    ``A = 1/2 sum_k (u_k v_{k+1} - u_{k+1} v_k)``."""
+    v = np.asarray(vertices, float)
+    u, w = v[:, 0], v[:, 1]
+    return 0.5 * float(np.dot(u, np.roll(w, -1)) - np.dot(np.roll(u, -1), w))
+
+
+def polygon_mask(p, vertices, tol=None) -> np.ndarray:
+    """Points ``p`` (N, 2) inside the polygon ``vertices`` (M, 2; closed implicitly).
+
+    Even-odd rule: a horizontal ray from the point to ``+u`` crosses the boundary an odd number
+    of times. Edge ``(a, b)`` is crossed when ``(a_v > p_v) != (b_v > p_v)`` and
+    ``p_u < a_u + (p_v - a_v)(b_u - a_u)/(b_v - a_v)``. Points within ``tol`` of an edge count
+    as inside (default ``1e-12`` x the polygon's bounding-box diagonal), like the closed
+    :class:`Box`. The loop runs over the M edges; every step is vectorised over the N points.
+    Self-intersecting polygons follow the even-odd rule.
+    """
+    p = np.asarray(p, float)
+    v = np.asarray(vertices, float)
+    if p.ndim != 2 or p.shape[1] != 2:
+        raise ValueError(f"points must have shape (N, 2), got {p.shape}")
+    if tol is None:
+        tol = 1e-12 * float(np.hypot(*(v.max(axis=0) - v.min(axis=0))))
+    pu, pv = p[:, 0], p[:, 1]
+    inside = np.zeros(len(p), bool)
+    edge = np.zeros(len(p), bool)
+    tol2 = tol * tol
+    for k in range(len(v)):
+        a, b = v[k], v[(k + 1) % len(v)]
+        cross = (a[1] > pv) != (b[1] > pv)
+        dv = b[1] - a[1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ui = a[0] + (pv - a[1]) * (b[0] - a[0]) / (dv if dv != 0.0 else 1.0)
+        inside ^= cross & (pu < ui)
+        e = b - a
+        ee = float(e @ e)
+        t = np.clip(((pu - a[0]) * e[0] + (pv - a[1]) * e[1]) / ee, 0.0, 1.0) if ee > 0 else 0.0
+        edge |= (pu - a[0] - t * e[0]) ** 2 + (pv - a[1] - t * e[1]) ** 2 <= tol2
+    return inside | edge
+
+
+class Shape:
+    """Base of all shapes: ``mask(x)``, ``bounds``, and the operators ``|`` (union),
+    ``&`` (intersection) and ``-`` (difference)."""
+
+    def mask(self, x) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    @property
+    def bounds(self):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def __or__(self, other):
+        return Union(self, other)
+
+    def __and__(self, other):
+        return Intersection(self, other)
+
+    def __sub__(self, other):
+        return Difference(self, other)
+
+
 @dataclass(frozen=True)
-class Box:
+class Box(Shape):
     lo: tuple
     hi: tuple
 
@@ -86,7 +166,7 @@ class Box:
 
 
 @dataclass(frozen=True)
-class Cylinder:
+class Cylinder(Shape):
     center: tuple
     radius: float
     z0: float
@@ -107,7 +187,7 @@ class Cylinder:
 
 
 @dataclass(frozen=True)
-class Disc:
+class Disc(Shape):
     center: tuple
     radius: float
     axis: str = "y"
@@ -128,6 +208,235 @@ class Disc:
         if c.size == 3:
             half["xyz".index(self.axis)] = 0.5 * float(self.thickness)
         return c - half, c + half
+
+
+@dataclass(frozen=True)
+class Sphere(Shape):
+    """Ball ``|x - center| <= radius`` (3-D), or a disc in 2-D (2 centre values)."""
+
+    center: tuple
+    radius: float
+
+    def __post_init__(self):
+        c = tuple(float(v) for v in self.center)
+        if len(c) not in (2, 3) or not all(map(math.isfinite, c)):
+            raise GeometryError(f"Sphere: center needs 2 or 3 finite values, got {self.center}")
+        if not (math.isfinite(self.radius) and self.radius > 0):
+            raise GeometryError(f"Sphere: radius must be finite and > 0, got {self.radius!r}")
+        object.__setattr__(self, "center", c)
+
+    def mask(self, x):
+        x = _pos(x)
+        if x.shape[1] != len(self.center):
+            raise ValueError(f"a {len(self.center)}-D sphere needs {len(self.center)}-D "
+                             f"positions, got {x.shape[1]}-D")
+        return ((x - np.asarray(self.center)) ** 2).sum(axis=1) <= self.radius ** 2
+
+    @property
+    def volume(self):
+        """Volume (3-D) or area (2-D)."""
+        return (4.0 / 3.0 * math.pi * self.radius ** 3 if len(self.center) == 3
+                else math.pi * self.radius ** 2)
+
+    @property
+    def bounds(self):
+        c = np.asarray(self.center)
+        return c - self.radius, c + self.radius
+
+
+@dataclass(frozen=True)
+class Polygon(Shape):
+    """A simple polygon (2-D) or a prism (3-D): the polygon extruded along ``axis``.
+
+    ``vertices``: (M >= 3, 2) corner coordinates [m] in order (either orientation; the polygon
+    closes itself). 2-D: ``axis``, ``z0``, ``z1`` left out; the polygon is in (x, y). 3-D: give
+    ``z0 < z1`` (the extrusion range along ``axis``, default ``"z"``); the vertices are then in
+    the plane of the two remaining axes in x, y, z order (``"z"`` -> (x, y), ``"y"`` -> (x, z),
+    ``"x"`` -> (y, z)). Inside by the even-odd rule (:func:`polygon_mask`), edges included.
+    """
+
+    vertices: tuple
+    axis: str = "z"
+    z0: float | None = None
+    z1: float | None = None
+
+    def __post_init__(self):
+        try:
+            v = np.asarray(self.vertices, float)
+        except (TypeError, ValueError):
+            raise GeometryError(f"Polygon: vertices must be numbers, got {self.vertices!r}") \
+                from None
+        if v.ndim != 2 or v.shape[1] != 2 or v.shape[0] < 3:
+            raise GeometryError(f"Polygon: vertices must be at least 3 points (u, v), got an "
+                                f"array of shape {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise GeometryError("Polygon: vertices must be finite")
+        if abs(polygon_area(v)) <= 1e-14 * float(np.ptp(v, axis=0).max()) ** 2:
+            raise GeometryError(f"Polygon: the vertices enclose no area: {v.tolist()}")
+        object.__setattr__(self, "vertices", tuple(map(tuple, v.tolist())))
+        if (self.z0 is None) != (self.z1 is None):
+            raise GeometryError("Polygon: give both z0 and z1 (3-D prism) or neither (2-D)")
+        if self.axis not in _AXES:
+            raise GeometryError(f"Polygon: axis must be 'x', 'y' or 'z', got {self.axis!r}")
+        if self.z0 is not None and not (math.isfinite(self.z0) and math.isfinite(self.z1)
+                                        and self.z1 > self.z0):
+            raise GeometryError(f"Polygon: need finite z0 < z1, got z0={self.z0}, z1={self.z1}")
+
+    @property
+    def dim(self) -> int:
+        return 2 if self.z0 is None else 3
+
+    def _plane(self):
+        k = _AXES.index(self.axis)
+        return k, [a for a in range(3) if a != k]
+
+    def mask(self, x):
+        x = _pos(x)
+        if x.shape[1] != self.dim:
+            raise ValueError(f"a {self.dim}-D polygon needs {self.dim}-D positions, got "
+                             f"{x.shape[1]}-D (give z0, z1 for a 3-D prism)")
+        if self.dim == 2:
+            return polygon_mask(x, self.vertices)
+        k, other = self._plane()
+        along = (x[:, k] >= self.z0) & (x[:, k] <= self.z1)
+        out = np.zeros(len(x), bool)
+        out[along] = polygon_mask(x[along][:, other], self.vertices)
+        return out
+
+    @property
+    def area(self):
+        """Area of the polygon [m^2]."""
+        return abs(polygon_area(self.vertices))
+
+    @property
+    def volume(self):
+        """Area (2-D) or area x (z1 - z0) (3-D)."""
+        return self.area if self.dim == 2 else self.area * (self.z1 - self.z0)
+
+    @property
+    def bounds(self):
+        v = np.asarray(self.vertices)
+        if self.dim == 2:
+            return v.min(axis=0), v.max(axis=0)
+        k, other = self._plane()
+        lo, hi = np.empty(3), np.empty(3)
+        lo[other], hi[other] = v.min(axis=0), v.max(axis=0)
+        lo[k], hi[k] = self.z0, self.z1
+        return lo, hi
+
+
+@dataclass(frozen=True)
+class HalfSpace(Shape):
+    """The half-space ``(x - point) . n <= 0``: ``normal`` points OUT of the shape (it is
+    normalised). 2 or 3 components. E.g. ``HalfSpace((0, 0, 5), (0, 0, 1))`` is ``z <= 5``."""
+
+    point: tuple
+    normal: tuple
+
+    def __post_init__(self):
+        p = np.asarray(self.point, float)
+        n = np.asarray(self.normal, float)
+        if p.shape not in ((2,), (3,)) or n.shape != p.shape:
+            raise GeometryError(f"HalfSpace: point and normal need 2 or 3 components each, got "
+                                f"{self.point} and {self.normal}")
+        nn = float(np.linalg.norm(n))
+        if not (np.all(np.isfinite(p)) and math.isfinite(nn) and nn > 0):
+            raise GeometryError(f"HalfSpace: need a finite point and a non-zero finite normal, "
+                                f"got {self.point}, {self.normal}")
+        object.__setattr__(self, "point", tuple(p.tolist()))
+        object.__setattr__(self, "normal", tuple((n / nn).tolist()))
+
+    def mask(self, x):
+        x = _pos(x)
+        if x.shape[1] != len(self.point):
+            raise ValueError(f"a {len(self.point)}-D half-space needs {len(self.point)}-D "
+                             f"positions, got {x.shape[1]}-D")
+        return (x - np.asarray(self.point)) @ np.asarray(self.normal) <= 0.0
+
+    @property
+    def volume(self):
+        return math.inf
+
+    @property
+    def bounds(self):
+        """Unbounded (``+-inf``) except along an axis-aligned normal."""
+        n = np.asarray(self.normal)
+        p = np.asarray(self.point)
+        lo, hi = np.full(n.size, -np.inf), np.full(n.size, np.inf)
+        k = np.flatnonzero(n != 0.0)
+        if k.size == 1:
+            (hi if n[k[0]] > 0 else lo)[k[0]] = p[k[0]]
+        return lo, hi
+
+
+class _Combination(Shape):
+    _symbol = "?"
+
+    def __init__(self, *shapes):
+        if len(shapes) < 2:
+            raise GeometryError(f"{type(self).__name__} needs at least 2 shapes, got "
+                                f"{len(shapes)}")
+        for s in shapes:
+            if not hasattr(s, "mask"):
+                raise GeometryError(f"{type(self).__name__}: {s!r} is not a shape (no .mask)")
+        self.shapes = tuple(shapes)
+
+    def __repr__(self):
+        return f"{type(self).__name__}({', '.join(map(repr, self.shapes))})"
+
+    def __eq__(self, other):
+        return type(self) is type(other) and self.shapes == other.shapes
+
+    def __hash__(self):
+        return hash((type(self).__name__, self.shapes))
+
+    def _all_bounds(self):
+        b = [s.bounds for s in self.shapes]
+        return np.array([lo for lo, _ in b], float), np.array([hi for _, hi in b], float)
+
+
+class Union(_Combination):
+    """Inside at least one of the shapes (``a | b | ...``)."""
+
+    def mask(self, x):
+        out = self.shapes[0].mask(x)
+        for s in self.shapes[1:]:
+            out = out | s.mask(x)
+        return out
+
+    @property
+    def bounds(self):
+        lo, hi = self._all_bounds()
+        return lo.min(axis=0), hi.max(axis=0)
+
+
+class Intersection(_Combination):
+    """Inside every shape (``a & b & ...``)."""
+
+    def mask(self, x):
+        out = self.shapes[0].mask(x)
+        for s in self.shapes[1:]:
+            out = out & s.mask(x)
+        return out
+
+    @property
+    def bounds(self):
+        lo, hi = self._all_bounds()
+        return lo.max(axis=0), hi.min(axis=0)
+
+
+class Difference(_Combination):
+    """Inside the first shape and outside all the others (``a - b - ...``)."""
+
+    def mask(self, x):
+        out = self.shapes[0].mask(x)
+        for s in self.shapes[1:]:
+            out = out & ~s.mask(x)
+        return out
+
+    @property
+    def bounds(self):
+        return self.shapes[0].bounds
 
 
 def subset_state(state: State, keep, rebuild: bool = True) -> State:
