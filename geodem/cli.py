@@ -62,10 +62,11 @@ def _err() -> Console:
 def _user_error_types():
     from geodem.backends import BackendError
     from geodem.bench import BenchError
+    from geodem.geo.errors import GeometryError
     from geodem.materials_library import MaterialError
     from geodem.workflow.errors import WorkflowError
 
-    return (BackendError, BenchError, WorkflowError, MaterialError)
+    return (BackendError, BenchError, WorkflowError, MaterialError, GeometryError)
 
 
 def _fail(msg: str, code: int) -> None:
@@ -714,6 +715,7 @@ def sweep_cmd(
 
     con = _out()
     err = _err()
+    bar = not no_progress and err.is_terminal
 
     def report(m, rec):
         vals = ", ".join(f"{k}={v}" for k, v in m.values.items())
@@ -722,22 +724,22 @@ def sweep_cmd(
         line = f"{m.key} {vals}: {what}" + (f", {wall:.1f} s" if wall is not None else "")
         if rec.get("error") and rec.get("status") != "ok":
             line += f": {str(rec['error']).splitlines()[0]}"
-        con.print(escape(line), highlight=False, soft_wrap=True)
+        (err if bar else con).print(escape(line), highlight=False, soft_wrap=True)  # above a bar
 
     try:
         code, s = run_sweep(file, out, params or [], zip_=zip_, seeds=seeds, backend=backend,
                             scheduler=scheduler, workers=workers, numba_threads=numba_threads,
                             resume=resume, overwrite=overwrite, sets=_parse_sets(sets),
-                            on_member=report, bar=not no_progress and err.is_terminal,
-                            console=err)
+                            on_member=report, bar=bar, console=err)
     except SweepInterrupted as exc:
         s = exc.summary
         err.print(f"interrupted: {s['completed']} of {s['members']} members complete; results "
                   f"so far in {escape(out)}; continue with --resume", highlight=False)
         raise typer.Exit(130) from None
     con.print(f"{s['members']} members: {s['completed']} completed ({s['skipped']} skipped), "
-              f"{s['failed']} failed; wall time {s['wall_time_s']:.1f} s on {escape(s['scheduler'])}"
-              f"; wrote results.csv, summary.json to {escape(out)}", highlight=False)
+              f"{s['failed']} failed; wall time {s['wall_time_s']:.1f} s on "
+              f"{escape(s['scheduler'])}; wrote results.csv, summary.json to {escape(out)}",
+              highlight=False)
     if code:
         raise typer.Exit(code)
 
