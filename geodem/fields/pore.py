@@ -1,4 +1,4 @@
-"""Pore-density fluid flow coupled to the bonded solid (MatDEM's pore density flow, Liu et al. 2020).
+"""Pore-density fluid flow coupled to the bonded solid (MatDEM pore density flow; Liu et al. 2020).
 
 The field ``"pore_fluid"`` (:class:`PoreField`) keeps a fluid mass in every pore of the packing
 and exchanges it through the throats between pores; there is no global pressure solve
@@ -149,7 +149,7 @@ def _err(msg: str) -> PoreFluidError:
 
 
 # ============================================================================ kernels
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def _geom2(x, r, cells, t, ap, floor, V, cen):
     """2-D pore volumes ``V`` [m^3] and vertex centroids ``cen``; returns the number of cells
     with area <= 0 (inside out)."""
@@ -164,20 +164,17 @@ def _geom2(x, r, cells, t, ap, floor, V, cen):
         area = 0.5 * ((bx - ax) * (cy - ay) - (by - ay) * (cx - ax))
         if area <= 0.0:
             bad += 1
-        solid = 0.0
-        film = 0.0
-        for k in range(3):
-            if k == 0:
-                px, py, qx, qy, ox, oy, rr = ax, ay, bx, by, cx, cy, r[i0]
-            elif k == 1:
-                px, py, qx, qy, ox, oy, rr = bx, by, cx, cy, ax, ay, r[i1]
-            else:
-                px, py, qx, qy, ox, oy, rr = cx, cy, ax, ay, bx, by, r[i2]
-            ux, uy = qx - px, qy - py
-            vx, vy = ox - px, oy - py
-            th = math.atan2(abs(ux * vy - uy * vx), ux * vx + uy * vy)
-            solid += 0.5 * th * rr * rr
-            film += th * rr
+        # angles at the three vertices (the third from the angle sum pi)
+        ux, uy, vx, vy = bx - ax, by - ay, cx - ax, cy - ay
+        th0 = math.atan2(abs(ux * vy - uy * vx), ux * vx + uy * vy)
+        ux, uy, vx, vy = cx - bx, cy - by, ax - bx, ay - by
+        th1 = math.atan2(abs(ux * vy - uy * vx), ux * vx + uy * vy)
+        th2 = math.pi - th0 - th1
+        if th2 < 0.0:
+            th2 = 0.0
+        r0, r1, r2 = r[i0], r[i1], r[i2]
+        solid = 0.5 * (th0 * r0 * r0 + th1 * r1 * r1 + th2 * r2 * r2)
+        film = th0 * r0 + th1 * r1 + th2 * r2
         a = abs(area)
         free = a - solid
         if free < floor * a:
@@ -203,7 +200,7 @@ def _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz):
     return om
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def _geom3(x, r, cells, ap, floor, V, cen):
     """3-D pore volumes and centroids; returns the number of tetrahedra with volume <= 0."""
     bad = 0
@@ -243,10 +240,10 @@ def _geom3(x, r, cells, ap, floor, V, cen):
     return bad
 
 
-@njit(cache=True)
-def _conductance(x, r, tp, te, slots, cstate, cen, kt, ap, bond_factor, C, csum):
+@njit(cache=True, fastmath=True)
+def _conductance(x, r, g0, tp, te, slots, cstate, cen, kt, ap, bond_factor, C, csum):
     """Throat conductances ``C`` [kg/(Pa s)] (mean over the throat's pairs) and their sums per
-    pore ``csum``."""
+    pore ``csum``; ``g0`` the reference gap of each pair (subtracted when positive)."""
     dim = x.shape[1]
     ne = te.shape[1]
     for a in range(csum.shape[0]):
@@ -268,8 +265,7 @@ def _conductance(x, r, tp, te, slots, cstate, cen, kt, ap, bond_factor, C, csum)
             for d in range(dim):
                 dd = x[j, d] - x[i, d]
                 l2 += dd * dd
-            g = math.sqrt(l2) - r[i] - r[j]
-            op = g + ap
+            op = math.sqrt(l2) - r[i] - r[j] - g0[t, e] + ap
             if op < 0.0:
                 op = 0.0
             s = slots[t, e]
@@ -341,24 +337,33 @@ def _cpoint(x, r, a, b, d):
     return x[a, d] + s * (x[b, d] - x[a, d])
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def _forces2(x, r, cells, P, t, F):
     """2-D pressure forces: ``F_a += P t R(q_ab - q_ca)`` for each cell (a, b, c) (ccw)."""
     for i in range(F.shape[0]):
         F[i, 0] = 0.0
         F[i, 1] = 0.0
+    qx = np.empty(3)
+    qy = np.empty(3)
     for c in range(cells.shape[0]):
         pt = P[c] * t
         if pt == 0.0:
             continue
-        for k in range(3):
+        for k in range(3):  # q[k]: contact point of edge (k, k+1)
             a = cells[c, k]
             b = cells[c, (k + 1) % 3]
-            o = cells[c, (k + 2) % 3]
-            # chord from q_oa (edge o-a) to q_ab (edge a-b), outward normal (dy, -dx)
-            dx = _cpoint(x, r, a, b, 0) - _cpoint(x, r, o, a, 0)
-            dy = _cpoint(x, r, a, b, 1) - _cpoint(x, r, o, a, 1)
-            F[a, 0] += pt * dy
+            ex = x[b, 0] - x[a, 0]
+            ey = x[b, 1] - x[a, 1]
+            L = math.sqrt(ex * ex + ey * ey)
+            s = 0.5 * (L + r[a] - r[b]) / L if L > 0.0 else 0.5
+            qx[k] = x[a, 0] + s * ex
+            qy[k] = x[a, 1] + s * ey
+        for k in range(3):
+            a = cells[c, k]
+            o = (k + 2) % 3  # edge (o, a) precedes a; edge (a, b) is k
+            dx = qx[k] - qx[o]
+            dy = qy[k] - qy[o]
+            F[a, 0] += pt * dy  # outward normal of the chord (dy, -dx)
             F[a, 1] -= pt * dx
 
 
@@ -499,11 +504,38 @@ def _throats(cells, dim):
     return tp, te, boundary
 
 
+def _peel(neighbors, bad):
+    """Cells outside the packing: the ``bad`` cells reachable from the convex hull through
+    ``bad`` cells (``neighbors``: Delaunay neighbours, -1 = hull). Bad cells enclosed by good
+    ones (voids of the packing, a borehole) stay."""
+    out = np.zeros(bad.shape[0], bool)
+    nb = np.asarray(neighbors)
+    open_ = nb < 0
+    front = bad & open_.any(axis=1)
+    while front.any():
+        out |= front
+        touch = np.zeros(bad.shape[0], bool)
+        nbf = nb[front]
+        touch[nbf[nbf >= 0]] = True
+        front = touch & bad & ~out
+    return out
+
+
 def _edge_ratio_max(x, r, cells, dim):
     ed = _cell_edges(dim)
     a, b = cells[:, ed[:, 0]], cells[:, ed[:, 1]]
     L = np.linalg.norm(x[b] - x[a], axis=2)
     return (L / (r[a] + r[b])).max(axis=1)
+
+
+def _nearest(pts, query, k):
+    """Indices ``(n, k)`` of the ``k`` nearest of ``pts`` to each query point (k <= len(pts))."""
+    from scipy.spatial import cKDTree
+
+    k = max(1, min(int(k), len(pts)))
+    if len(query) == 0:
+        return np.zeros((0, k), np.int64)
+    return np.asarray(cKDTree(pts).query(query, k=k)[1], np.int64).reshape(len(query), k)
 
 
 def _point_in_cells(x, cells, pts, cand):
@@ -535,7 +567,7 @@ def _point_in_cells(x, cells, pts, cand):
 
 
 # ============================================================================ the field
-def _check_bc(k, bc, dim=None):
+def _check_bc(k, bc):
     if not isinstance(bc, dict):
         raise _err(f"bcs[{k}] must be a mapping, got {bc!r}")
     allowed = {"name", "role", "where", "pressure", "rate", "p_max", "t_start", "cavity"}
@@ -598,7 +630,7 @@ class PoreField(CoupledField):
     def __init__(self, k_f=WATER_KF, c_f=WATER_CF, k_t=None, aperture=None, viscosity=1.0e-3,
                  bond_factor=100.0, p_init=0.0, p_min=0.0, bcs=(), group="all", thickness=None,
                  edge_factor=2.0, floor=0.01, remesh_disp=0.25, remesh_every=0, forces=True,
-                 every=1):
+                 gap_reference="initial", every=1):
         super().__init__(every)
         self.k_f = _positive("k_f", k_f, "kg m^-3 Pa^-1")
         self.c_f = _positive("c_f", c_f, "kg/m^3")
@@ -636,6 +668,9 @@ class PoreField(CoupledField):
             raise _err(f"remesh_every = {remesh_every!r}; allowed: >= 0 (0 = never)")
         self.remesh_every = int(remesh_every)
         self.forces = bool(forces)
+        if gap_reference not in ("initial", "zero"):
+            raise _err(f"gap_reference = {gap_reference!r}; allowed: initial, zero")
+        self.gap_reference = gap_reference
         self.sim = None
 
     # ------------------------------------------------------------------ config
@@ -647,7 +682,8 @@ class PoreField(CoupledField):
                 "group": self.group, "thickness": self.thickness,
                 "edge_factor": self.edge_factor, "floor": self.floor,
                 "remesh_disp": self.remesh_disp, "remesh_every": self.remesh_every,
-                "forces": self.forces, "every": self.every}
+                "forces": self.forces, "gap_reference": self.gap_reference,
+                "every": self.every}
 
     # ------------------------------------------------------------------ attach
     def attach(self, sim) -> None:
@@ -689,6 +725,8 @@ class PoreField(CoupledField):
         self.couplings = 0
         self.remeshes = 0
         self._geom_key = None
+        self.x0 = st.x.copy()
+        self.r0 = st.r.copy()
         cells = self._triangulate(st.x, None)
         self._set_network(st, cells)
         self._geometry(st)
@@ -698,6 +736,27 @@ class PoreField(CoupledField):
         self.booked[:] = 0.0
         self.f_prev = np.zeros((st.n, st.dim))
         self.x_mesh = st.x.copy()
+        if self.forces and st.dt > 0:
+            self.check_mechanical_dt(sim)
+
+    def check_mechanical_dt(self, sim) -> float:
+        """Raise :class:`~geodem.fields.FieldStabilityError` when the mechanical time step is
+        above :meth:`mechanical_dt_bound` (or, coupling every ``every`` > 1 steps, when
+        ``every x dt`` is: the fluid force is then held for ``every`` steps). Returns the
+        bound [s]."""
+        from geodem.fields import FieldStabilityError
+
+        st = sim.state
+        lim = self.mechanical_dt_bound(sim)
+        if st.dt * self.every >= lim:
+            raise FieldStabilityError(
+                f"coupled field 'pore_fluid': the pore fluid stiffens the solid: the mechanical "
+                f"time step {st.dt:.4g} s{f' x every = {self.every}' if self.every > 1 else ''} "
+                f"is above the stability bound {lim:.4g} s with the fluid's stiffness (bulk "
+                f"modulus c_f / k_f = {self.c_f / self.k_f:.3g} Pa in pores of "
+                f"{float(np.median(self.V)):.3g} m^3); use a smaller dt (simulation.dt or "
+                f"dt_fraction), couple every step, or a more compressible fluid (larger k_f)")
+        return lim
 
     # ------------------------------------------------------------------ network
     def _triangulate(self, x, old):
@@ -713,18 +772,14 @@ class PoreField(CoupledField):
                        f"a {st.dim}-D cloud of elements") from None
         cells = idx[tri.simplices]
         cells = _orient(x, cells)
-        keep = _edge_ratio_max(x, st.r, cells, st.dim) <= self.edge_factor
         cen = x[cells].mean(axis=1)
-        cav = self._cavity_mask(cen)
-        keep |= cav
+        bad = (_edge_ratio_max(x, st.r, cells, st.dim) > self.edge_factor) & \
+            ~self._cavity_mask(cen)
+        keep = ~_peel(tri.neighbors, bad)
         if old is not None and old.shape[0]:
             # cells whose vertex set existed, or whose centroid lies in an old cell, stay pores
             keep |= self._match(old, cells)[0] >= 0
-            from scipy.spatial import cKDTree
-
-            ocen = x[old].mean(axis=1)
-            cand = cKDTree(ocen).query(cen[~keep], k=min(4, old.shape[0]))[1]
-            cand = cand.reshape(int((~keep).sum()), -1)
+            cand = _nearest(x[old].mean(axis=1), cen[~keep], 4)
             inside = _point_in_cells(x, old, cen[~keep], cand) >= 0
             k2 = np.flatnonzero(~keep)
             keep[k2[inside]] = True
@@ -800,6 +855,13 @@ class PoreField(CoupledField):
         self.held = held
         self.slots = np.full(self.te.shape[:2], -1, np.int64)
         _find_slots(st.nbr, self.te, self.slots)
+        # reference gap of each throat pair (gap_reference: initial), from the attach positions
+        if self.gap_reference == "initial":
+            i, j = self.te[..., 0], self.te[..., 1]
+            g0 = np.linalg.norm(self.x0[j] - self.x0[i], axis=-1) - self.r0[i] - self.r0[j]
+            self.g0 = np.ascontiguousarray(np.maximum(g0, 0.0))
+        else:
+            self.g0 = np.zeros(self.te.shape[:2])
         self.V = np.zeros(P)
         self.cen = np.zeros((P, st.dim))
         self.C = np.zeros(self.tp.shape[0])
@@ -814,8 +876,8 @@ class PoreField(CoupledField):
             bad = _geom2(st.x, st.r, self.cells, self.t, self.ap, self.floor, self.V, self.cen)
         else:
             bad = _geom3(st.x, st.r, self.cells, self.ap, self.floor, self.V, self.cen)
-        _conductance(st.x, st.r, self.tp, self.te, self.slots, st.cstate, self.cen, self.kt,
-                     self.ap, self.bond_factor, self.C, self.csum)
+        _conductance(st.x, st.r, self.g0, self.tp, self.te, self.slots, st.cstate, self.cen,
+                     self.kt, self.ap, self.bond_factor, self.C, self.csum)
         self._geom_key = (st.step, st.time)
         return bad
 
@@ -824,14 +886,12 @@ class PoreField(CoupledField):
         the module docstring). Returns counts of kept, lost and new pores."""
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
-        from scipy.spatial import cKDTree
 
         sim = sim or self.sim
         st = sim.state
         x = st.x
         old_cells, old_M = self.cells, self.M
         total = float(old_M.sum())
-        _geom = _geom2 if self.dim == 2 else _geom3
         # old densities at the current positions
         Vo = np.zeros(old_cells.shape[0])
         co = np.zeros((old_cells.shape[0], self.dim))
@@ -854,13 +914,11 @@ class PoreField(CoupledField):
         nO = old_cells.shape[0]
         if lost.size or new.size:
             # parent (old cell containing the centroid, else nearest) of every new cell
-            kq = min(4, nO)
-            cand = cKDTree(co).query(cn[new], k=kq)[1].reshape(new.size, -1)
+            cand = _nearest(co, cn[new], 4)
             parent = _point_in_cells(x, old_cells, cn[new], cand)
             parent = np.where(parent >= 0, parent, cand[:, 0])
             # child (new cell containing the centroid, else nearest) of every lost cell
-            kq = min(4, Pn)
-            cand = cKDTree(cn).query(co[lost], k=kq)[1].reshape(lost.size, -1)
+            cand = _nearest(cn, co[lost], 4)
             child = _point_in_cells(x, new_cells, co[lost], cand)
             child = np.where(child >= 0, child, cand[:, 0])
             # graph over nodes: old cells [0, nO) and new cells [nO, nO + Pn)
@@ -889,7 +947,7 @@ class PoreField(CoupledField):
                 if (host < 0).any():  # parent lost in a patch without ... : nearest kept cell
                     kc = np.flatnonzero(kept)
                     if kc.size:
-                        near = kc[cKDTree(cn[kc]).query(cn[new[dry[host < 0]]])[1]]
+                        near = kc[_nearest(cn[kc], cn[new[dry[host < 0]]], 1)[:, 0]]
                         host[host < 0] = near
                 for h in np.unique(host):
                     if h < 0:
@@ -1120,12 +1178,16 @@ class PoreField(CoupledField):
     # ------------------------------------------------------------------ checkpoints
     def arrays(self) -> dict:
         return {"cells": self.cells, "M": self.M, "booked": self.booked,
-                "f_prev": self.f_prev, "x_mesh": self.x_mesh,
+                "f_prev": self.f_prev, "x_mesh": self.x_mesh, "x0": self.x0, "r0": self.r0,
+                "held": self.held,
                 "books": np.array([self.M0, self.couplings, self.remeshes], float)}
 
     def restore(self, arrays: dict) -> None:
         st = self.sim.state
+        self.x0 = np.array(arrays["x0"], float)
+        self.r0 = np.array(arrays["r0"], float)
         self._set_network(st, arrays["cells"])
+        self.held = np.array(arrays["held"], np.int64)  # chosen when the network was built
         self.M = np.array(arrays["M"], float)
         self.booked = np.array(arrays["booked"], float)
         self.f_prev = np.array(arrays["f_prev"], float)

@@ -1,0 +1,203 @@
+"""Hydraulic fracturing (geodem/workflow/hydrofrac.py, workflows/hydraulic_fracturing*.yaml).
+
+Default suite: the analysis helpers on hand-made input, and a small plate (0.1 m, ~400
+elements) run end to end (summary keys, mass balance, pictures). Slow (``-m slow``): the two
+workflows at their default size against the targets of VALIDATION.md:
+
+* isotropic (four fixed boundaries): 2-4 crack arms (measured: 4 arms at 107, 217, 274, 354
+  deg); breakdown within 30 % of Hubbert-Willis ``P_b = T`` with T the calibrated
+  (Brazilian) tensile strength of materials/sandstone.yaml, 5.83 MPa: NOT met, measured
+  2.25 MPa (0.39 x), kept as a strict xfail (see docs/hydraulic_fracturing.md: the 2-D
+  bonded packing has no single tensile strength: direct tension of the same material gives
+  0.65 MPa, the Brazilian nominal 5.83 MPa, the borehole bursts in between);
+* confined (sigma_H = 6 MPa along x, sigma_h = 3 MPa): the dominant arm within 15 deg of
+  sigma_H (measured 7.9 deg), breakdown within 30 % of ``3 sigma_h - sigma_H + T`` = 8.83 MPa
+  (measured 10.23 MPa, +16 %);
+* fluid mass balance < 1e-6 in both (measured ~1e-16).
+"""
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from geodem.workflow import run_workflow
+from geodem.workflow.hydrofrac import (
+    axis_misfit_deg,
+    boundary_tractions,
+    burst_samples,
+    connected_cracks,
+    crack_arms,
+    hubbert_willis,
+)
+from geodem.workflow.schema import load_builtins
+
+load_builtins()
+
+ROOT = Path(__file__).resolve().parents[2]
+HF = ROOT / "workflows" / "hydraulic_fracturing.yaml"
+HFC = ROOT / "workflows" / "hydraulic_fracturing_confined.yaml"
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_numba_thread():
+    import numba
+
+    n = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(n)
+
+
+# ------------------------------------------------------------------ helpers by hand
+def test_hubbert_willis_formula():
+    assert hubbert_willis(10e6, 5e6, 4e6, 1e6) == 3 * 5e6 - 10e6 + 4e6 - 1e6
+    assert hubbert_willis(0.0, 0.0, 5.83e6) == 5.83e6
+
+
+def test_crack_arms_finds_three_arms_at_120_degrees():
+    rng = np.random.default_rng(0)
+    pts = []
+    for ang in (10.0, 130.0, 250.0):
+        r = np.linspace(0.02, 0.08, 12)
+        th = np.radians(ang + rng.normal(0, 3, r.size))
+        pts.append(np.c_[r * np.cos(th), r * np.sin(th)])
+    pts.append([[0.012, 0.0], [0.0, -0.011]])  # wall damage inside r_min: ignored
+    xy = np.concatenate(pts) + [0.1, 0.1]
+    arms = crack_arms(xy, [0.1, 0.1], 0.015, gap_deg=30, min_cracks=3)
+    assert len(arms) == 3
+    np.testing.assert_allclose([a["angle_deg"] for a in arms], [10, 130, 250], atol=3)
+    assert all(a["count"] == 12 for a in arms)
+    assert arms[0]["reach"] == pytest.approx(0.08, rel=1e-9)
+
+
+def test_crack_arms_merges_across_zero_degrees_and_drops_small_clusters():
+    xy = np.array([[math.cos(math.radians(a)), math.sin(math.radians(a))] for a in
+                   (350, 355, 2, 8, 90)]) * 0.05
+    arms = crack_arms(xy, [0, 0], 0.01, gap_deg=30, min_cracks=2)
+    assert len(arms) == 1 and arms[0]["count"] == 4
+    assert axis_misfit_deg(arms[0]["angle_deg"], 0.0) < 2.0
+
+
+def test_connected_cracks_keeps_chains_reaching_the_borehole():
+    chain = np.c_[np.linspace(0.012, 0.05, 9), np.zeros(9)]
+    far = np.array([[0.0, 0.08], [0.004, 0.08]])
+    idx = connected_cracks(np.concatenate([chain, far]), np.zeros(2), 0.01, 0.006)
+    assert idx.tolist() == list(range(9))
+
+
+def test_burst_is_the_first_window_with_enough_new_cracks():
+    p = np.arange(10) * 0.1e6
+    cracks = np.array([0, 0, 1, 1, 2, 3, 9, 12, 12, 12])
+    b = burst_samples(p, cracks, 5, 0.25e6)
+    assert b[0] == 6  # 9 cracks at 0.6 MPa, 3 at 0.35 MPa and below
+
+
+def test_axis_misfit():
+    assert axis_misfit_deg(175.0, 0.0) == pytest.approx(5.0)
+    assert axis_misfit_deg(100.0, 10.0) == pytest.approx(90.0)
+    assert axis_misfit_deg(30.0, 200.0) == pytest.approx(10.0)
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0])
+def test_boundary_tractions_carry_the_far_field_stress(angle):
+    # a ring of boundary points on the four faces of a unit square
+    s = np.linspace(0.05, 0.95, 10)
+    x = np.concatenate([np.c_[np.zeros(10), s], np.c_[np.ones(10), s],
+                        np.c_[s, np.zeros(10)], np.c_[s, np.ones(10)]])
+    F = boundary_tractions(x, np.arange(40), [0, 0], [1, 1], 6e6, 3e6, angle, 0.01)
+    assert np.abs(F.sum(axis=0)).max() < 1e-6
+    th = math.radians(angle)
+    R = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
+    sig = R @ np.diag([6e6, 3e6]) @ R.T
+    # the xmax face carries -sigma . (1, 0) x length 1 x thickness 0.01
+    np.testing.assert_allclose(F[10:20].sum(axis=0), -sig @ [1.0, 0.0] * 0.01, rtol=1e-12)
+    np.testing.assert_allclose(F[30:40].sum(axis=0), -sig @ [0.0, 1.0] * 0.01, rtol=1e-12)
+
+
+# ------------------------------------------------------------------ a small plate end to end
+SMALL = ["model.size=0.1", "model.hole_radius=0.0075", "steps.injection.duration=0.003"]
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    out = tmp_path_factory.mktemp("hf") / "run"
+    code, s = run_workflow(HF, out, sets=SMALL, echo=False, progress=False)
+    assert code == 0 and s["status"] == "ok", s.get("error")
+    return s, out
+
+
+def test_small_plate_fractures_with_closed_books(small):
+    s, out = small
+    r = s["results"]["injection"]
+    for key in ("breakdown_pressure", "hubbert_willis_pressure", "crack_branches",
+                "crack_angles_deg", "dominant_crack_angle_deg", "sigma_H_angle_deg",
+                "fluid_mass_balance_rel_error"):
+        assert key in s, key
+    assert s["fluid_mass_balance_rel_error"] < 1e-6
+    assert s["energy_closure_rel_error"] < 1e-2
+    assert s["sigma_H_angle_deg"] is None  # isotropic: no sigma_H
+    # T from the calibration record of materials/sandstone.yaml (Brazilian, 2-D)
+    assert s["tensile_strength"] == pytest.approx(5830465.5934311375)
+    assert "calibrated.2d.measured.Tu" in r["tensile_strength_source"]
+    assert s["hubbert_willis_pressure"] == s["tensile_strength"]  # sigma = 0, p0 = 0
+    # the burst: a pressure the ramp reached, after the first crack
+    assert 0 < r["first_crack_pressure"] <= s["breakdown_pressure"] <= r["final_injection_pressure"]
+    assert 2 <= s["crack_branches"] <= 4  # measured: 3 arms (107, 229, 355 deg)
+    assert len(s["crack_angles_deg"]) == s["crack_branches"]
+    assert r["injected_mass"] > 0 and s["cracks_tensile"] > 10
+    for name in ("hf_pressure.png", "hf_history.png", "hf_animation.gif", "hydrofrac_curve.csv"):
+        assert (out / name).stat().st_size > 1000, name
+    a = np.loadtxt(out / "hydrofrac_curve.csv", delimiter=",", skiprows=1)
+    assert np.all(np.diff(a[:, 2]) >= 0)  # the ramp
+    assert a[:, 9].max() < 1e-6
+
+
+# ------------------------------------------------------------------ the paper's size (slow)
+@pytest.fixture(scope="module")
+def isotropic(tmp_path_factory):
+    out = tmp_path_factory.mktemp("hf_full") / "run"
+    code, s = run_workflow(HF, out, echo=False, progress=False)
+    assert code == 0 and s["status"] == "ok", s.get("error")
+    return s
+
+
+@pytest.fixture(scope="module")
+def confined(tmp_path_factory):
+    out = tmp_path_factory.mktemp("hfc_full") / "run"
+    code, s = run_workflow(HFC, out, echo=False, progress=False)
+    assert code == 0 and s["status"] == "ok", s.get("error")
+    return s
+
+
+@pytest.mark.slow
+@pytest.mark.validation
+def test_isotropic_plate_grows_two_to_four_arms(isotropic):
+    assert 2 <= isotropic["crack_branches"] <= 4
+    assert isotropic["fluid_mass_balance_rel_error"] < 1e-6
+
+
+@pytest.mark.slow
+@pytest.mark.validation
+@pytest.mark.xfail(strict=True, reason="measured breakdown 2.25 MPa = 0.39 x Hubbert-Willis "
+                                       "T = 5.83 MPa (calibrated Brazilian Tu); direct tension "
+                                       "of the same material gives 0.65 MPa: see "
+                                       "docs/hydraulic_fracturing.md")
+def test_isotropic_breakdown_within_30_percent_of_hubbert_willis(isotropic):
+    assert isotropic["breakdown_pressure"] == pytest.approx(
+        isotropic["hubbert_willis_pressure"], rel=0.30)
+
+
+@pytest.mark.slow
+@pytest.mark.validation
+def test_confined_fracture_follows_sigma_H_and_breaks_down_near_hubbert_willis(confined):
+    assert confined["sigma_H_angle_deg"] == 0.0
+    assert axis_misfit_deg(confined["dominant_crack_angle_deg"],
+                           confined["sigma_H_angle_deg"]) < 15.0
+    assert confined["breakdown_pressure"] == pytest.approx(
+        confined["hubbert_willis_pressure"], rel=0.30)
+    assert confined["hubbert_willis_pressure"] == pytest.approx(
+        3 * 3e6 - 6e6 + confined["tensile_strength"], rel=1e-12)
+    assert confined["fluid_mass_balance_rel_error"] < 1e-6
+    assert json.loads(json.dumps(confined))["crack_branches"] >= 1

@@ -1,0 +1,120 @@
+"""The pore-fluid field in workflows: workflows/darcy.yaml (steady Darcy flow through a bonded
+random specimen at two pressure drops), a checkpoint resume through the runner, and bad input
+(exit status 2, the message naming the field)."""
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from geodem.cli import app
+from geodem.workflow import run_workflow
+
+ROOT = Path(__file__).resolve().parents[2]
+DARCY = ROOT / "workflows" / "darcy.yaml"
+runner = CliRunner()
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_numba_thread():
+    import numba
+
+    n = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def darcy(tmp_path_factory):
+    out = tmp_path_factory.mktemp("darcy") / "run"
+    code, s = run_workflow(DARCY, out, echo=False, progress=False)
+    assert code == 0 and s["status"] == "ok", s.get("error")
+    return s
+
+
+def test_darcy_permeability_does_not_depend_on_the_pressure_drop(darcy):
+    r1, r2 = darcy["results"]["drop_1"], darcy["results"]["drop_2"]
+    assert r1["stopped_by"] == "steady" and r2["stopped_by"] == "steady"
+    assert r2["pressure_drop"] == 2 * r1["pressure_drop"]
+    # Darcy: the flux doubles with the drop, the permeability stays (measured: 0.1 %)
+    assert r2["mass_flux_in"] / r1["mass_flux_in"] == pytest.approx(2.0, rel=0.05)
+    assert abs(r2["permeability"] - r1["permeability"]) / r1["permeability"] < 0.05
+    # steady: what goes in comes out, and every kilogram is booked
+    assert r1["flux_mismatch"] < 2e-3 and r2["flux_mismatch"] < 2e-3
+    assert darcy["fluid_mass_balance_rel_error"] < 1e-10
+    assert darcy["energy_closure_rel_error"] < 5e-3
+    # permeability = K mu L / (rho A) from the step's own numbers
+    k = r1["hydraulic_conductance"] * 1e-3 * r1["flow_length"] / (
+        (1000.0 + 1000.0 / 2.2e9 * 0.5e5) * r1["flow_area"])
+    assert r1["permeability"] == pytest.approx(k, rel=1e-12)
+
+
+LATTICE_FLOW = """\
+metadata: {name: lattice_flow}
+model:
+  type: lattice_block
+  dim: 2
+  counts: [10, 14]
+  diameter: 0.01
+  material: rock
+  groups: {base: {side: ymin}, top: {side: ymax}}
+materials:
+  rock: {rho: 2650.0, kn: 2.0e+8, ks: 8.0e+7, xb: 1.0e-5, fs0: 1000.0, mu: 0.4}
+steps:
+  - {kind: fix, group: base}
+  - {kind: pore_flow, name: flow, inlet: base, outlet: top, p_in: 3.0e+5, nsteps: 600,
+     steady_tol: null, fluid: {k_t: 1.0e-5}}
+  - {kind: pore_flow, name: more, inlet: base, outlet: top, p_in: 6.0e+5, nsteps: 600,
+     steady_tol: null}
+checkpoints: {every_seconds: null}
+"""
+
+
+def test_a_resumed_pore_flow_run_is_bit_identical(tmp_path):
+    wf = tmp_path / "flow.yaml"
+    wf.write_text(LATTICE_FLOW)
+    code, a = run_workflow(wf, tmp_path / "a", echo=False, progress=False)
+    assert code == 0, a.get("error")
+    assert a["results"]["more"]["fluid"]["substeps"] > 1000
+    for stop in (407, 901):  # inside the first and inside the second pore_flow step
+        out = tmp_path / f"b{stop}"
+        code, b = run_workflow(wf, out, echo=False, progress=False, stop_after_steps=stop)
+        assert b["status"] == "interrupted"
+        code, b = run_workflow(wf, out, echo=False, progress=False, resume=True)
+        assert code == 0 and b["status"] == "ok", b.get("error")
+        assert b["state_sha256"] == a["state_sha256"]
+        assert b["fluid_mass_balance_rel_error"] == a["fluid_mass_balance_rel_error"]
+        assert b["results"]["more"]["mass_flux_in"] == a["results"]["more"]["mass_flux_in"]
+
+
+BAD = [
+    ("steps.drop_1.p_in=-1.0", "p_in", "greater than or equal to 0"),
+    ("steps.drop_1.fluid.k_f=0.0", "k_f", "greater than 0"),
+    ("steps.drop_1.inlet=nowhere", "inlet", "pore_fluid.*unknown group 'nowhere'"),
+]
+
+
+@pytest.mark.parametrize("setting, field, msg", BAD, ids=[b[1] for b in BAD])
+def test_bad_input_exits_2_naming_the_field(setting, field, msg):
+    import re
+
+    res = runner.invoke(app, ["validate", str(DARCY), "--set", setting])
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output
+    lines = [ln for ln in res.stderr.splitlines() if f".{field}" in ln]
+    assert any(re.search(msg, ln) for ln in lines), res.stderr
+
+
+def test_hydrofrac_bad_input_exits_2(tmp_path):
+    hf = ROOT / "workflows" / "hydraulic_fracturing.yaml"
+    for setting, field in (("steps.injection.p0=-5.0", "p0"),
+                           ("steps.injection.fluid.k_f=-1.0", "k_f"),
+                           ("steps.injection.sigma_H=1.0e+6", "sigma_H")):
+        res = runner.invoke(app, ["validate", str(hf), "--set", setting])
+        assert res.exit_code == 2, res.output
+        assert any(field in ln for ln in res.stderr.splitlines()), res.stderr
+
+
+def test_summary_json_is_valid_json(darcy, tmp_path):
+    assert json.loads(json.dumps(darcy))["results"]["drop_1"]["fluid"]["pores"] > 100
