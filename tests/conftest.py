@@ -32,3 +32,16 @@ def make_specimen(n=300, dim=3, seed=1, xb=5e-4, fs0=60.0, mu=0.4, vscale=1.0):
 @pytest.fixture
 def specimen():
     return make_specimen
+
+
+@pytest.fixture(scope="module")
+def one_numba_thread():
+    """Models of a few hundred elements run faster on one numba thread than on two busy ones
+    (and a machine shared with other jobs makes two threads far slower). Use with
+    ``pytestmark = pytest.mark.usefixtures("one_numba_thread")``."""
+    import numba
+
+    n = numba.get_num_threads()
+    numba.set_num_threads(1)
+    yield
+    numba.set_num_threads(n)

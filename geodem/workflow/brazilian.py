@@ -87,6 +87,28 @@ TENSION_COLUMNS = ("step", "time", "strain", "stress", "force", "cracks_tensile"
 MIN_ACROSS = 6  # the packer cannot fill a disc fewer element diameters across
 
 
+def plate_with_hole(cfg, material: str, size, d_mean: float, distri_rate: float, seed: int,
+                    hole_radius: float, n_across: float):
+    """A 2-D bonded plate ``size = (Lx, Ly)`` [m] with a circular hole of ``hole_radius`` [m]
+    at its centre: a :func:`~geodem.build.specimen.make_specimen` box, the hole cut out, loose
+    elements pruned (:func:`prune_loose`). Shared by the borehole models (heated borehole,
+    hydraulic fracturing). Returns ``(state, removed, specimen_material, report, centre)``;
+    raises :class:`BuildError` on ``size`` when the plate cannot be built."""
+    from geodem.build.shapes import subset_state
+    from geodem.build.specimen import make_specimen
+
+    sm = specimen_material(cfg, material, 2, d_mean)
+    try:
+        st, rep = make_specimen("box", list(size), d_mean, distri_rate, sm.material, 2, seed,
+                                element=sm.element)
+    except ValueError as exc:
+        raise BuildError(("size",), str(exc)) from None
+    centre = 0.5 * np.asarray(size, float)
+    st = subset_state(st, np.linalg.norm(st.x - centre, axis=1) > hole_radius)
+    st, removed = prune_loose(st, 2, n_across=n_across)
+    return st, removed, sm, rep, centre
+
+
 def prune_loose(state, min_bonds: int = 2, n_across: float | None = None, tol: float = 1e-3):
     """Remove the elements with fewer than ``min_bonds`` intact bonds, repeatedly (a removal
     can leave a neighbour short), and balance again (standard balances until the

@@ -74,7 +74,7 @@ import numpy as np
 from pydantic import model_validator
 
 from geodem.workflow.labtests import specimen_material
-from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
+from geodem.workflow.models import BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, Strict, StepBase, register_model, \
     register_step
 
@@ -146,21 +146,13 @@ class HydrofracPlate(ModelBase):
         return out
 
     def build(self, cfg):
-        from geodem.build.shapes import subset_state
-        from geodem.build.specimen import make_specimen
         from geodem.core import groups as grp
-        from geodem.workflow.brazilian import prune_loose
+        from geodem.workflow.brazilian import plate_with_hole
 
-        sm = specimen_material(cfg, self.material, 2, self.d_mean)
         seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
-        try:
-            st, rep = make_specimen("box", [self.size, self.size], self.d_mean,
-                                    self.distri_rate, sm.material, 2, seed, element=sm.element)
-        except ValueError as exc:
-            raise BuildError(("size",), str(exc)) from None
-        centre = np.array([0.5 * self.size, 0.5 * self.size])
-        st = subset_state(st, np.linalg.norm(st.x - centre, axis=1) > self.hole_radius)
-        st, removed = prune_loose(st, 2, n_across=self.n_across())
+        st, removed, sm, rep, centre = plate_with_hole(
+            cfg, self.material, (self.size, self.size), self.d_mean, self.distri_rate, seed,
+            self.hole_radius, self.n_across())
         st.groups = {"all": 0}
         st.group[:] = 0
         grp.add_group(st, "plate", np.arange(st.n))

@@ -533,24 +533,15 @@ class BoreholePlate(ModelBase):
         return out
 
     def build(self, cfg):
-        from geodem.build.shapes import subset_state
-        from geodem.build.specimen import make_specimen
         from geodem.core import groups as grp
         from geodem.core.engine import Simulation
-        from geodem.workflow.brazilian import prune_loose
-        from geodem.workflow.labtests import specimen_material
+        from geodem.workflow.brazilian import plate_with_hole
 
-        sm = specimen_material(cfg, self.material, 2, self.d_mean)
         seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
-        try:
-            st, rep = make_specimen("box", self.size, self.d_mean, self.distri_rate,
-                                    sm.material, 2, seed, element=sm.element)
-        except ValueError as exc:
-            raise BuildError(("size",), str(exc)) from None
-        c = 0.5 * np.asarray(self.size, float)
-        st = subset_state(st, np.linalg.norm(st.x - c, axis=1) > self.hole_radius)
         n_across = self.n_across()
-        st, removed = prune_loose(st, 2, n_across=n_across)
+        st, removed, sm, rep, c = plate_with_hole(cfg, self.material, self.size, self.d_mean,
+                                                  self.distri_rate, seed, self.hole_radius,
+                                                  n_across)
         if st.n < 10:
             raise BuildError(("size",), f"only {st.n} elements left: make the plate larger or "
                                         f"d_mean smaller")

@@ -48,15 +48,7 @@ BRAZILIAN = ROOT / "workflows" / "brazilian.yaml"
 TENSION = ROOT / "workflows" / "direct_tension.yaml"
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_numba_thread():
-    """These models have a few hundred elements: one thread is faster than two busy ones."""
-    import numba
-
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 # ============================================================================ stress

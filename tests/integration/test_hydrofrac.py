@@ -40,14 +40,7 @@ HF = ROOT / "workflows" / "hydraulic_fracturing.yaml"
 HFC = ROOT / "workflows" / "hydraulic_fracturing_confined.yaml"
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_numba_thread():
-    import numba
-
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 # ------------------------------------------------------------------ helpers by hand

@@ -29,14 +29,7 @@ ROD = ROOT / "workflows" / "thermal_rod.yaml"
 CRACKING = ROOT / "workflows" / "thermal_cracking.yaml"
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_numba_thread():
-    import numba
-
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 def _run(path, out, *sets, extra=(), code=0):

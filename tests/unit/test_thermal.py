@@ -28,14 +28,7 @@ from geodem.fields.thermal import (
 K, C = 2.5, 900.0  # W/(m K), J/(kg K)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_numba_thread():
-    import numba
-
-    n = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 def _pair(r1=0.005, r2=0.004, rho=2000.0):
