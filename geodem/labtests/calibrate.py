@@ -192,7 +192,7 @@ def solve_1d(xs, ys, target, prior, rng, bounds, max_step, saturation=0.0):
     nearest the target, at most ``max_step`` long. Returns ``(x, beyond)``: ``beyond`` is True
     (an unreachable target) when a sample at a bound is still short of the target and the root
     lies outside ``bounds``, or when the function has saturated: the target lies beyond every
-    sample and the secant between the two samples furthest toward it (at least
+    sample at larger ``x`` and the secant between the two samples furthest toward it (at least
     ``MIN_SECANT_STEP`` apart) is below ``saturation`` in magnitude (``x`` is then that of the
     sample nearest the target)."""
     xs, ys = np.asarray(xs, float), np.asarray(ys, float)
@@ -207,8 +207,10 @@ def solve_1d(xs, ys, target, prior, rng, bounds, max_step, saturation=0.0):
             x = 0.5 * (xs[i] + xs[j])
         return float(np.clip(x, *bounds)), False
     k = int(np.argmin(np.abs(d)))
-    if saturation > 0.0 and len(xs) >= 2:
-        toward = -np.sign(d[k]) * np.sign(prior)  # the direction of x in which y approaches
+    toward = -np.sign(d[k]) * np.sign(prior)  # the direction of x in which y approaches
+    # a function saturates upwards (more shear strength stops raising Cu/Tu); downwards it
+    # keeps falling (the bonds then fail in shear), so only a target above is flagged
+    if saturation > 0.0 and len(xs) >= 2 and toward > 0:
         order = np.argsort(toward * xs)[::-1]  # furthest toward the target first
         a, b = order[0], order[1]
         if abs(xs[a] - xs[b]) >= MIN_SECANT_STEP and \

@@ -148,3 +148,11 @@ def test_interpolate_takes_the_latest_of_samples_at_the_same_point():
     # rho_s held at its bound while the strength level is corrected: the newest sample counts
     assert C.interpolate([3.9, 3.9, 3.9], [3.81, 3.66, 3.59], 3.9, 0.75, (-0.2, 1.5)) == 3.59
     assert C.interpolate([0.0, 1.0], [0.0, 2.0], 0.25, 1.0, (0.1, 5.0)) == pytest.approx(0.5)
+
+
+def test_a_target_below_every_sample_is_not_called_saturated():
+    # mudstone: Cu/Tu measured 13.1, 12.8 (flat) against a target of 10: lower rho_s is needed,
+    # and the ratio does fall there (shear failure of the bonds), so keep stepping down
+    x, beyond = C.solve_1d([3.25, 2.80], [2.573, 2.548], 2.303, 0.6, (0.05, 1.5), (-3.0, 3.9),
+                           1.1, saturation=0.1)
+    assert not beyond and x < 2.80
