@@ -221,18 +221,9 @@ def member_hash(path, sets, backend=None) -> tuple[str, str]:
     """``(config hash, backend name)`` of ``path`` with ``sets`` applied, computed without
     building the model: the hash is the one :func:`geodem.workflow.runner.prepare` gives for
     that backend; WorkflowError when the workflow is invalid."""
-    from geodem.workflow.runner import _resolve_backend, _tags_first, config_hash
-    from geodem.workflow.schema import validate_document
-    from geodem.workflow.yamlio import load_document
+    from geodem.workflow.runner import config_hash, validated
 
-    doc = load_document(path, sets)
-    if backend is not None:
-        doc.data["backend"] = backend
-        doc._replace_lines(("backend",), {("backend",): (f"--backend {backend}", None)})
-    cfg = validate_document(doc)
-    name = _resolve_backend(cfg, doc)
-    resolved = _tags_first(cfg.model_dump(mode="json", by_alias=True))
-    resolved["backend"] = name
+    _, _, name, resolved = validated(path, sets, backend)
     return config_hash(resolved), name
 
 

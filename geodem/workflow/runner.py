@@ -227,8 +227,10 @@ def _estimate(cfg, backend, built, total_steps, n, dim):
     return int(output), float(runtime), EST_COMPILE_S.get(backend, 0.0)
 
 
-def prepare(path, sets=(), backend: str | None = None) -> Prepared:
-    """Validate, build and plan a workflow without stepping (WorkflowError on bad input)."""
+def validated(path, sets=(), backend: str | None = None):
+    """Load and validate a workflow with its ``--set`` overrides and backend, without building
+    anything: ``(doc, cfg, backend_name, resolved)`` (``resolved``: the resolved config whose
+    :func:`config_hash` names the run). WorkflowError on bad input."""
     from geodem.workflow.schema import validate_document
 
     doc = load_document(path, sets)
@@ -237,6 +239,14 @@ def prepare(path, sets=(), backend: str | None = None) -> Prepared:
         doc._replace_lines(("backend",), {("backend",): (f"--backend {backend}", None)})
     cfg = validate_document(doc)
     name = _resolve_backend(cfg, doc)
+    resolved = _tags_first(cfg.model_dump(mode="json", by_alias=True))
+    resolved["backend"] = name
+    return doc, cfg, name, resolved
+
+
+def prepare(path, sets=(), backend: str | None = None) -> Prepared:
+    """Validate, build and plan a workflow without stepping (WorkflowError on bad input)."""
+    doc, cfg, name, resolved = validated(path, sets, backend)
     need, avail = _check_memory(cfg, doc)
     built = _build(cfg, doc)
     dt, source, stable = _time_step(cfg, doc, built.state)
@@ -249,8 +259,6 @@ def prepare(path, sets=(), backend: str | None = None) -> Prepared:
                 total_steps=total, n_elements=st.n, memory_bytes=need, memory_available=avail,
                 output_bytes=output, checkpoint_bytes=int(st.nbytes()) + 4096,
                 runtime_s=runtime, compile_s=compile_s)
-    resolved = _tags_first(cfg.model_dump(mode="json", by_alias=True))
-    resolved["backend"] = name
     return Prepared(Path(path), doc, cfg, name, built, plan, resolved, config_hash(resolved),
                     tuple(sets))
 
