@@ -67,7 +67,7 @@ from typing import Literal, Optional
 
 import numpy as np
 
-from geodem.workflow.labtests import SpecimenMaterial, specimen_material
+from geodem.workflow.labtests import PlatenTest, SpecimenMaterial, specimen_material
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
     F,
@@ -564,7 +564,7 @@ class Brazilian(StepBase):
 
 # ============================================================================ direct tension
 @register_step("direct_tension")
-class DirectTension(StepBase):
+class DirectTension(PlatenTest):
     """Direct tension: bottom platen fixed along the loading axis, top platen pulled at
     ``strain_rate`` with the standard damping on, until the force falls below ``drop`` x peak
     after the peak or the strain reaches ``max_strain``. Needs the groups ``bottom`` and
@@ -573,61 +573,26 @@ class DirectTension(StepBase):
     direct_tension_curve.csv and direct_tension.png."""
 
     example = {"kind": "direct_tension", "max_strain": 0.0001}
-    example_model = {"type": "lattice_block", "dim": 2, "counts": [6, 6], "diameter": 0.01,
-                     "material": "rock", "groups": {"bottom": {"side": "ymin"},
-                                                    "top": {"side": "ymax"}}}
     strain_rate: float = F(0.05, unit="1/s", gt=0, le=100,
                            description="Axial strain rate of the top platen (quasi-static "
                                        "when the time to the peak is many wave transit times)")
     max_strain: float = F(0.001, gt=0, le=0.5, description="Stop at this axial strain")
     drop: float = F(0.5, gt=0, lt=1, description="Stop when the force falls below drop x "
                                                  "peak after the peak")
-    samples: int = F(400, ge=20, le=100000, description="Samples over max_strain")
-    standard_damping: bool = F(True, description="MatDEM's standard damping eta_c / N on")
-    thickness: Optional[float] = F(None, unit="m", gt=0,
-                                   description="2-D: thickness for the area (default d_mean)")
     plot: bool = F(True, description="Draw direct_tension.png (needs matplotlib)")
 
-    def check(self, cfg, groups):
-        missing = [g for g in ("bottom", "top") if g not in groups]
-        if missing:
-            return [(("kind",), f"direct_tension needs the platen groups 'bottom' and 'top' "
-                                f"(model type specimen has them); missing: "
-                                f"{', '.join(missing)}")]
-        return []
-
-    def planned_steps(self, plan):
-        return max(1, int(math.ceil(self.max_strain / (self.strain_rate * plan.dt))))
-
     def execute(self, ctx):
-        from geodem.core import groups, timestep
+        from geodem.core import groups
         from geodem.labtests import measure
 
-        st = ctx.state
+        st, ax, d, ref, top, bot, h0, height, area = self.platens(ctx)
         dim = st.dim
-        ax = dim - 1
-        d = float(ctx.model.info["diameter"])
-        ref = ctx.model.reference
-        top, bot = groups.members(st, "top"), groups.members(st, "bottom")
-        h0 = ref[top, ax].mean() - ref[bot, ax].mean()
-        height = ref[:, ax].max() - ref[:, ax].min()
-        widths = ref.max(axis=0)[:ax] - ref.min(axis=0)[:ax]
-        area = float(np.prod(widths)) * ((self.thickness or d) if dim == 2 else 1.0)
         path = ctx.out_dir / TENSION_CURVE
         rows = []
         if ctx.resumed and path.exists():
             rows = _read_rows(path, st.step, (0, 5, 6, 7))
         if not ctx.resumed:
-            v = [math.nan] * dim
-            v[ax] = self.strain_rate * height
-
-            def setup(s):
-                if self.standard_damping:
-                    s.eta[:] = timestep.standard_damping(s, height / d)
-                groups.fix(s, "bottom", [ax])
-                groups.set_velocity(s, "top", v)
-
-            ctx.decree(setup, "top")
+            self.start_loading(ctx, 1.0, height, d)
         _start_csv(path, TENSION_COLUMNS, rows)
         total = self.planned_steps(ctx.plan)
         chunk = max(1, total // self.samples)

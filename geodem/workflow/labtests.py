@@ -231,8 +231,68 @@ def _extent(x, mid):
     return 2.0 * np.abs(lat - lat.mean(axis=0)).mean(axis=0)
 
 
+class PlatenTest(StepBase):
+    """Shared part of the platen-driven tests (``uniaxial``, ``direct_tension``): the bottom
+    platen fixed along the loading axis (the last), the top one moved at ``strain_rate`` x
+    height, ``samples`` records over ``max_strain``. Subclasses declare ``strain_rate``,
+    ``max_strain``, ``drop`` and ``plot`` (their defaults differ)."""
+
+    example_model = {"type": "lattice_block", "dim": 2, "counts": [6, 6], "diameter": 0.01,
+                     "material": "rock", "groups": {"bottom": {"side": "ymin"},
+                                                    "top": {"side": "ymax"}}}
+    samples: int = F(400, ge=20, le=100000, description="Samples over max_strain")
+    standard_damping: bool = F(True, description="MatDEM's standard damping eta_c / N on")
+    thickness: Optional[float] = F(None, unit="m", gt=0,
+                                   description="2-D: thickness for the area (default d_mean)")
+
+    def check(self, cfg, groups):
+        missing = [g for g in ("bottom", "top") if g not in groups]
+        if missing:
+            return [(("kind",), f"{self.kind} needs the platen groups 'bottom' and 'top' (model "
+                                f"type specimen has them); missing: {', '.join(missing)}")]
+        return []
+
+    def planned_steps(self, plan):
+        return max(1, int(math.ceil(self.max_strain / (self.strain_rate * plan.dt))))
+
+    def platens(self, ctx):
+        """Geometry of the test from the model's reference positions: ``(st, ax, d, ref, top,
+        bot, h0, height, area)`` (h0: platen-to-platen distance; area: cross-section, times
+        the thickness in 2-D)."""
+        from geodem.core import groups
+
+        st = ctx.state
+        ax = st.dim - 1
+        d = float(ctx.model.info["diameter"])
+        ref = ctx.model.reference
+        top, bot = groups.members(st, "top"), groups.members(st, "bottom")
+        h0 = ref[top, ax].mean() - ref[bot, ax].mean()
+        height = ref[:, ax].max() - ref[:, ax].min()
+        widths = ref.max(axis=0)[:ax] - ref.min(axis=0)[:ax]
+        area = float(np.prod(widths)) * ((self.thickness or d) if st.dim == 2 else 1.0)
+        return st, ax, d, ref, top, bot, h0, height, area
+
+    def start_loading(self, ctx, sign: float, height: float, d: float) -> None:
+        """Standard damping on (``eta_c / N``, N = height / d), bottom fixed along the loading
+        axis, top moving at ``sign x strain_rate x height`` (sign -1: compression)."""
+        from geodem.core import groups, timestep
+
+        st = ctx.state
+        ax = st.dim - 1
+        v = [math.nan] * st.dim
+        v[ax] = sign * self.strain_rate * height
+
+        def setup(s):
+            if self.standard_damping:
+                s.eta[:] = timestep.standard_damping(s, height / d)
+            groups.fix(s, "bottom", [ax])
+            groups.set_velocity(s, "top", v)
+
+        ctx.decree(setup, "top")
+
+
 @register_step("uniaxial")
-class Uniaxial(StepBase):
+class Uniaxial(PlatenTest):
     """Uniaxial compression (UCS): bottom platen fixed along the loading axis, top platen
     moved at ``strain_rate`` with the standard damping on, until the stress falls below
     ``drop`` x peak after the peak or the strain reaches ``max_strain``. Needs the groups
@@ -241,48 +301,22 @@ class Uniaxial(StepBase):
     stress_strain.png."""
 
     example = {"kind": "uniaxial", "max_strain": 0.0001}
-    example_model = {"type": "lattice_block", "dim": 2, "counts": [6, 6], "diameter": 0.01,
-                     "material": "rock", "groups": {"bottom": {"side": "ymin"},
-                                                    "top": {"side": "ymax"}}}
     strain_rate: float = F(0.2, unit="1/s", gt=0, le=100,
                            description="Axial strain rate of the top platen (quasi-static "
                                        "when the time to the peak is many wave transit times)")
     max_strain: float = F(0.01, gt=0, le=0.5, description="Stop at this axial strain")
     drop: float = F(0.7, gt=0, lt=1, description="Stop when the stress falls below drop x "
                                                  "peak after the peak")
-    samples: int = F(400, ge=20, le=100000, description="Samples over max_strain")
-    standard_damping: bool = F(True, description="MatDEM's standard damping eta_c / N on")
-    thickness: Optional[float] = F(None, unit="m", gt=0,
-                                   description="2-D: thickness for the area (default d_mean)")
     plot: bool = F(True, description="Draw stress_strain.png (needs matplotlib)")
 
-    def check(self, cfg, groups):
-        missing = [g for g in ("bottom", "top") if g not in groups]
-        if missing:
-            return [(("kind",), f"uniaxial needs the platen groups 'bottom' and 'top' (model "
-                                f"type specimen has them); missing: {', '.join(missing)}")]
-        return []
-
-    def planned_steps(self, plan):
-        return max(1, int(math.ceil(self.max_strain / (self.strain_rate * plan.dt))))
-
     def execute(self, ctx):
-        from geodem.core import groups, timestep
+        from geodem.core import groups
         from geodem.labtests import measure
 
-        st = ctx.state
+        st, ax, d, ref, top, bot, h0, height, area = self.platens(ctx)
         dim = st.dim
-        ax = dim - 1
-        d = float(ctx.model.info["diameter"])
-        ref = ctx.model.reference
-        top, bot = groups.members(st, "top"), groups.members(st, "bottom")
-        h0 = ref[top, ax].mean() - ref[bot, ax].mean()
-        height = ref[:, ax].max() - ref[:, ax].min()
-        widths = ref.max(axis=0)[:ax] - ref.min(axis=0)[:ax]
-        area = float(np.prod(widths)) * ((self.thickness or d) if dim == 2 else 1.0)
         sets = _lateral_sets(ref, ax, d)
         w0 = _extent(ref, sets)
-        n_across = height / d
         path = ctx.out_dir / CURVE
         rows = []
         if ctx.resumed and path.exists():
@@ -290,16 +324,7 @@ class Uniaxial(StepBase):
                 rows = [[int(v) if k in (0, 5, 6, 7) else float(v) for k, v in enumerate(r)]
                         for r in list(csv.reader(f))[1:] if int(r[0]) <= st.step]
         if not ctx.resumed:
-            v = [math.nan] * dim
-            v[ax] = -self.strain_rate * height
-
-            def setup(s):
-                if self.standard_damping:
-                    s.eta[:] = timestep.standard_damping(s, n_across)
-                groups.fix(s, "bottom", [ax])
-                groups.set_velocity(s, "top", v)
-
-            ctx.decree(setup, "top")
+            self.start_loading(ctx, -1.0, height, d)
         with open(path, "w", newline="") as f:
             csv.writer(f).writerow(COLUMNS)
             csv.writer(f).writerows(rows)
