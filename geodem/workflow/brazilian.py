@@ -67,7 +67,8 @@ from typing import Literal, Optional
 
 import numpy as np
 
-from geodem.workflow.labtests import PlatenTest, SpecimenMaterial, specimen_material
+from geodem.workflow.labtests import (PlatenTest, SpecimenMaterial, material_problems,
+                                      specimen_material)
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
     F,
@@ -372,12 +373,7 @@ class BrazilianDisc(ModelBase):
             out.append((("thickness",), f"a 3-D disc must be at least 2 d_mean = "
                                         f"{2 * self.d_mean:g} m thick (got "
                                         f"{self.disc_thickness():g} m)"))
-        if self.material in cfg.materials:
-            try:
-                specimen_material(cfg, self.material, self.dim, self.d_mean)
-            except ValueError as exc:
-                out.append((("material",), str(exc)))
-        return out
+        return out + material_problems(cfg, self.material, self.dim, self.d_mean)
 
     def build(self, cfg):
         sm = specimen_material(cfg, self.material, self.dim, self.d_mean)

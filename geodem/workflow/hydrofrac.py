@@ -73,7 +73,7 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import model_validator
 
-from geodem.workflow.labtests import specimen_material
+from geodem.workflow.labtests import material_problems
 from geodem.workflow.models import BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, Strict, StepBase, register_model, \
     register_step
@@ -138,12 +138,7 @@ class HydrofracPlate(ModelBase):
             out.append((("hole_radius",), f"the borehole radius must be at most size / 6 = "
                                           f"{self.size / 6:g} m (a plate, not a ring), got "
                                           f"{self.hole_radius:g} m"))
-        if self.material in cfg.materials:
-            try:
-                specimen_material(cfg, self.material, 2, self.d_mean)
-            except ValueError as exc:
-                out.append((("material",), str(exc)))
-        return out
+        return out + material_problems(cfg, self.material, 2, self.d_mean)
 
     def build(self, cfg):
         from geodem.core import groups as grp

@@ -132,6 +132,19 @@ def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> 
 
 
 # ============================================================================ specimen
+def material_problems(cfg, name: str, dim: int, d_mean: float | None = None) -> list:
+    """``[(("material",), message)]`` when material ``name`` cannot serve a specimen of
+    dimension ``dim`` (:func:`specimen_material` refuses it); ``[]`` otherwise, also when the
+    name is unknown (the schema reports that)."""
+    if name not in cfg.materials:
+        return []
+    try:
+        specimen_material(cfg, name, dim, d_mean)
+    except ValueError as exc:
+        return [(("material",), str(exc))]
+    return []
+
+
 def box_size_problems(size, dim: int, d_mean: float) -> list:
     """Field problems of a box specimen's ``size`` (``dim`` lengths > 0, at least 4 d_mean)."""
     if len(size) != dim:
@@ -186,12 +199,7 @@ class Specimen(ModelBase):
 
     def check(self, cfg):
         out = box_size_problems(self.size, self.dim, self.d_mean)
-        if self.material in cfg.materials:
-            try:
-                specimen_material(cfg, self.material, self.dim)
-            except ValueError as exc:
-                out.append((("material",), str(exc)))
-        return out
+        return out + material_problems(cfg, self.material, self.dim)
 
     def build(self, cfg):
         from geodem.build.specimen import make_specimen

@@ -513,7 +513,7 @@ class BoreholePlate(ModelBase):
         return float(max(self.size) / self.d_mean) if self.size else 1.0
 
     def check(self, cfg):
-        from geodem.workflow.labtests import box_size_problems, specimen_material
+        from geodem.workflow.labtests import box_size_problems, material_problems
 
         out = box_size_problems(self.size, 2, self.d_mean)
         if not out:
@@ -525,12 +525,7 @@ class BoreholePlate(ModelBase):
         if self.hole_radius < self.d_mean:
             out.append((("hole_radius",), (f"the hole must be at least one d_mean = "
                                            f"{self.d_mean:g} m in radius")))
-        if self.material in cfg.materials:
-            try:
-                specimen_material(cfg, self.material, 2, self.d_mean)
-            except ValueError as exc:
-                out.append((("material",), str(exc)))
-        return out
+        return out + material_problems(cfg, self.material, 2, self.d_mean)
 
     def build(self, cfg):
         from geodem.core import groups as grp

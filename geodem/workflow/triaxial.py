@@ -88,7 +88,8 @@ from typing import Literal, Optional
 
 import numpy as np
 
-from geodem.workflow.labtests import SpecimenMaterial, box_size_problems, specimen_material
+from geodem.workflow.labtests import (SpecimenMaterial, box_size_problems, material_problems,
+                                      specimen_material)
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
     F,
@@ -338,12 +339,7 @@ class TriaxialBox(ModelBase):
             out.append((("dim",), "triaxial_box is 2-D only for now: in a first 3-D run the "
                                   "walls never came into contact with the packed specimen "
                                   "(zero wall stresses; not diagnosed yet); use dim: 2"))
-        if self.material in cfg.materials:
-            try:
-                specimen_material(cfg, self.material, self.dim, self.d_mean)
-            except ValueError as exc:
-                out.append((("material",), str(exc)))
-        return out
+        return out + material_problems(cfg, self.material, self.dim, self.d_mean)
 
     def build(self, cfg):
         from geodem.build.walls import add_walls
