@@ -414,7 +414,11 @@ BUILTIN_MODULES = ("labtests",   # specimen, uniaxial
                    "brazilian",  # brazilian_disc, brazilian, direct_tension
                    "triaxial",   # triaxial_box, triaxial
                    "thermal",    # thermal models and steps
-                   "hydrofrac")  # pore-fluid models and steps
+                   "hydrofrac",  # pore-fluid models and steps
+                   "collapse",   # granular column collapse
+                   "seismic",    # seismic valley, absorbing boundaries
+                   "landslide",  # landslide from an elevation raster
+                   "tbm")        # TBM disc cutter
 
 
 def _import_builtin_modules():
