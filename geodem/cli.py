@@ -594,10 +594,12 @@ def _float_list(value: Optional[str], name: str, integer=False):
     "speed_accuracy.png into -o DIR, and names the fastest point within --tolerance.\n\n"
     "KIND 'stability': measures the critical time step of small lattice models (undamped "
     "velocity Verlet) against 2/omega_max and geodem's refusal bound; writes stability.json and "
-    "stability_limit.png into -o DIR."))
+    "stability_limit.png into -o DIR.\n\nKIND 'speed-accuracy': error against wall time of the "
+    "cases with a reference (--cases; --quick: a tiny grid); docs/speed_accuracy.md."))
 @_guard
 def study_cmd(
-    kind: Annotated[str, typer.Argument(metavar="KIND", help="ucs or stability")],
+    kind: Annotated[str, typer.Argument(metavar="KIND", help="ucs, stability or "
+                                                             "speed-accuracy")],
     out: Annotated[str, typer.Option("-o", "--out", help="Output directory.")],
     workflow: Annotated[str, typer.Option("--workflow", help="UCS workflow file.")] =
     "workflows/ucs.yaml",
@@ -612,8 +614,17 @@ def study_cmd(
                                              help="Error bound for 'fastest within'.")] = 0.05,
     backend: Annotated[Optional[str], typer.Option(
         "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
+    cases: Annotated[Optional[str], typer.Option("--cases", help="speed-accuracy: cases, "
+                                                 "comma-separated, or all.")] = None,
+    quick: Annotated[bool, typer.Option("--quick", help="speed-accuracy: tiny grid.")] = False,
 ):
     from geodem.labtests.study import ucs_study
+
+    if kind == "speed-accuracy":
+        from geodem.labtests.speed_accuracy import run_cli
+
+        run_cli(out, cases, quick, backend, _out(), lambda msg: _fail(msg, USER_ERROR))
+        return
 
     if kind == "stability":
         from geodem.labtests.stability import stability_study
@@ -631,7 +642,7 @@ def study_cmd(
         con.print(f"wrote stability.json, stability_limit.png to {out}", highlight=False)
         return
     if kind != "ucs":
-        _fail(f"study KIND {kind!r}: allowed: ucs, stability", USER_ERROR)
+        _fail(f"study KIND {kind!r}: allowed: ucs, stability, speed-accuracy", USER_ERROR)
     n = _float_list(across, "--across", integer=True)
     f = _float_list(fractions, "--dt-fractions")
     if any(v > 0.2 for v in f):
