@@ -73,6 +73,7 @@ from __future__ import annotations
 
 import csv
 import math
+import time
 from typing import Literal, Optional
 
 import numpy as np
@@ -272,6 +273,7 @@ class SeismicBoundary(CoupledField):
         self.t_start = float(t_start)
         self.sets = {k: np.zeros(0, np.int64) for k in ("base", "left", "right", "receivers")}
         self.rec_t, self.rec_v, self.rec_a = [], [], []
+        self.wall, self.calls = 0.0, 0  # its own cost (seconds, couplings)
 
     # -- contract
     def attach(self, sim) -> None:
@@ -340,6 +342,7 @@ class SeismicBoundary(CoupledField):
 
     # -- the coupling, every mechanical step
     def advance(self, sim, span: float) -> int:
+        c0 = time.perf_counter()
         st = sim.state
         t = st.time + st.dt - self.t_start  # time of the next force evaluation
         v = st.v
@@ -369,6 +372,8 @@ class SeismicBoundary(CoupledField):
             self.rec_t.append(st.time - self.t_start)
             self.rec_v.append(v[r].copy())
             self.rec_a.append(st.a[r].copy())
+        self.wall += time.perf_counter() - c0
+        self.calls += 1
         return 1
 
     def records(self):
@@ -464,3 +469,515 @@ def measure_column(t, y, v, a, H, cp, pulse: Pulse) -> dict:
             "incident_peak_velocity": v_inc,
             "boundary_reflection": float(max(refl)) if refl else None,
             "reflection_receivers": int(len(refl))}
+
+
+# ============================================================================ model
+@register_model("valley_section")
+class ValleySection(ModelBase):
+    """A 2-D section of bonded rock (regular triangular lattice, the elastic medium E, nu, rho)
+    cut by a V-shaped valley; groups ``base``, ``sides``, ``surface`` (the ground line) and
+    ``rock``. ``valley_depth: 0`` gives a flat section."""
+
+    size_field = "scale"
+    example = {"type": "valley_section", "width": 60.0, "height": 50.0, "valley_width": 24.0,
+               "valley_depth": 10.0, "d": 2.0}
+    dim: Literal[2] = F(2, description="Dimension (2-D sections only)")
+    width: float = F(600.0, unit="m", gt=0, description="Width of the section")
+    height: float = F(200.0, unit="m", gt=0, description="Height of the section (base to the "
+                                                         "flat ground)")
+    valley_width: float = F(240.0, unit="m", ge=0, description="Width of the V valley at the "
+                                                               "ground line")
+    valley_depth: float = F(80.0, unit="m", ge=0, description="Depth of the V valley (0: flat "
+                                                              "ground)")
+    valley_x: Optional[float] = F(None, unit="m", description="x of the valley axis (default: "
+                                                              "the middle)")
+    d: float = F(2.5, unit="m", gt=0, description="Element diameter (lattice spacing) at scale "
+                                                  "1")
+    scale: float = F(1.0, gt=0, le=20, description="Resolution knob: the spacing is d / scale "
+                                                   "(elements ~ scale^2; the pulse and the "
+                                                   "geometry stay)")
+    material: Optional[Name] = F(None, description="A library or rock-property material whose "
+                                                   "E, nu, rho are used (default: the E, nu, "
+                                                   "rho below)")
+    E: float = F(60.0e9, unit="Pa", gt=0, description="Young's modulus of the rock (2-D medium)")
+    nu: float = F(0.25, gt=-1, le=1.0 / 3.0, description="Poisson's ratio of the rock; the "
+                                                          "triangular lattice reaches -1 < nu "
+                                                          "<= 1/3")
+    rho: float = F(2650.0, unit="kg/m^3", gt=0, description="Density of the rock")
+
+    def spacing(self) -> float:
+        return self.d / self.scale
+
+    def n_elements(self):
+        d = self.spacing()
+        area = self.width * self.height - 0.5 * self.valley_width * self.valley_depth
+        return max(1, int(area / (0.5 * SQRT3 * d * d)))
+
+    def bytes_per_element(self):
+        return state_bytes_per_element(2, 8) + 1500
+
+    def material_refs(self):
+        return [(("material",), self.material)] if self.material is not None else []
+
+    def group_names(self):
+        return ["all", "rock", "surface", "sides", "base"]
+
+    def n_across(self):
+        return float(self.height / (0.5 * SQRT3 * self.spacing()))
+
+    def check(self, cfg):
+        out = []
+        d = self.spacing()
+        for key in ("width", "height"):
+            if getattr(self, key) < 10 * d:
+                out.append(((key,), f"{key} = {getattr(self, key):g} m is less than 10 element "
+                                    f"spacings ({10 * d:g} m); allowed: >= 10 d / scale"))
+        xc = 0.5 * self.width if self.valley_x is None else self.valley_x
+        if self.valley_depth > 0:
+            if self.valley_width <= 0:
+                out.append((("valley_width",), "a valley (valley_depth > 0) needs "
+                                               "valley_width > 0"))
+            if xc - 0.5 * self.valley_width < 2 * d or xc + 0.5 * self.valley_width > \
+                    self.width - 2 * d:
+                out.append((("valley_width",), f"the valley ({xc - 0.5 * self.valley_width:g} "
+                                               f"to {xc + 0.5 * self.valley_width:g} m) must "
+                                               f"lie inside the section (2 d from its sides, "
+                                               f"0 to {self.width:g} m)"))
+            if self.valley_depth > self.height - 10 * d:
+                out.append((("valley_depth",), f"valley_depth = {self.valley_depth:g} m leaves "
+                                               f"less than 10 d of rock below the valley; "
+                                               f"allowed: <= height - 10 d = "
+                                               f"{self.height - 10 * d:g} m"))
+        if self.material is not None and self.material in cfg.materials:
+            try:
+                self.rock(cfg)
+            except BuildError as exc:
+                out.append((exc.path, str(exc)))
+        return out
+
+    def rock(self, cfg) -> tuple[float, float, float, str]:
+        """``(E, nu, rho, source)`` of the rock."""
+        if self.material is None:
+            return self.E, self.nu, self.rho, "model E, nu, rho"
+        from geodem.workflow.schema import LibraryMaterial, MacroMaterial
+
+        m = cfg.materials[self.material]
+        if isinstance(m, LibraryMaterial):
+            from geodem.materials_library import load_material
+
+            try:
+                v = load_material(m.library).values()
+            except Exception as exc:  # noqa: BLE001 - reported as a build error
+                raise BuildError(("material",), f"library material {m.library!r} not "
+                                                f"readable: {exc}") from None
+            E, nu, rho, src = v["E"], v["nu"], v["rho"], f"library {m.library!r} (laboratory)"
+        elif isinstance(m, MacroMaterial):
+            E, nu, rho, src = m.E, m.nu, m.rho, f"material {self.material!r}"
+        else:
+            raise BuildError(("material",), f"material {self.material!r} gives element "
+                                            f"parameters; valley_section needs rock "
+                                            f"properties (a library material or E, nu, ...)")
+        if not -1.0 < nu <= 1.0 / 3.0:
+            raise BuildError(("material",), f"material {self.material!r} has nu = {nu:g}; "
+                                            f"the triangular lattice reaches -1 < nu <= 1/3")
+        return float(E), float(nu), float(rho), src
+
+    def build(self, cfg):
+        E, nu, rho, src = self.rock(cfg)
+        med = lattice_medium(E, nu, rho, self.spacing())
+        st, info = build_section(med, self.width, self.height,
+                                 self.valley_width if self.valley_depth > 0 else 0.0,
+                                 self.valley_depth, self.valley_x)
+        info.update({"rock_source": src, "d_base": self.d, "scale": self.scale,
+                     "medium": {**info["medium"], "d": med["d"], "thickness": med["thickness"]}})
+        return BuiltModel(st, st.x.copy(), self.n_across(), info)
+
+
+# ============================================================================ step
+@register_step("seismic_wave")
+class SeismicWave(StepBase):
+    """A vertically propagating P pulse (Ricker or Hann-windowed sine) injected at the base of a
+    ``valley_section`` through a Lysmer-Kuhlemeyer viscous boundary (base and sides absorb),
+    after a flat reference column of the same rock measured the P-wave speed, the free-surface
+    amplification and the base reflection. Adds amplification_max, amplification_location_m,
+    p_wave_speed_rel_error, free_surface_amplification and boundary_reflection to summary.json;
+    writes seismic_receivers.npz, seismic_amplification.csv, seismic_snapshots.png,
+    seismic_surface.png, seismic_reference.png, seismic_animation.gif and seismic_vtk/."""
+
+    example = {"kind": "seismic_wave", "duration": 0.004, "wavelength_elements": 8,
+               "gif": False, "snapshots": 2, "vtk_frames": 1}
+    example_model = ValleySection.example
+    pulse: Literal["ricker", "sine"] = F("ricker", description="Incident particle-velocity "
+                                                               "pulse")
+    frequency: Optional[float] = F(None, unit="Hz", gt=0,
+                                   description="Ricker peak / sine frequency (default: the P "
+                                               "wavelength is wavelength_elements x the model's "
+                                               "d at scale 1)")
+    wavelength_elements: float = F(20.0, ge=4, le=1000,
+                                   description="Default frequency: c_p / (this x d)")
+    cycles: float = F(2.0, gt=0, le=20, description="Sine cycles under the Hann window")
+    amplitude: float = F(0.01, unit="m/s", gt=0, description="Peak particle velocity of the "
+                                                             "incident wave")
+    duration: float = F(..., unit="s", gt=0, description="Simulated time of the section run "
+                                                         "(at least the pulse plus the "
+                                                         "crossing of the section)")
+    sides: Literal["free_field", "absorbing", "roller"] = F(
+        "free_field", description="Side boundaries: dashpots against the flat free field "
+                                  "(free_field), plain dashpots (absorbing) or horizontally "
+                                  "fixed (roller)")
+    record_every: Int = F(2, ge=1, le=1000, description="Receiver sampling interval [steps]")
+    reference: bool = F(True, description="Run the flat reference column first (wave speed, "
+                                          "free-surface amplification, base reflection and the "
+                                          "flat-ground peak acceleration)")
+    reference_width: Int = F(8, ge=3, le=200, description="Width of the reference column "
+                                                          "[elements]")
+    snapshots: Int = F(6, ge=1, le=12, description="Particle-speed maps in "
+                                                   "seismic_snapshots.png")
+    vtk_frames: Int = F(6, ge=0, le=100, description="Frames written to seismic_vtk/ (.vtp)")
+    gif: bool = F(True, description="Write seismic_animation.gif")
+    gif_frames: Int = F(40, ge=2, le=300, description="Frames of the animation")
+    plot: bool = F(True, description="Draw the pictures (needs matplotlib)")
+
+    def check(self, cfg, groups):
+        out = []
+        if getattr(cfg.model, "type", None) != "valley_section":
+            out.append((("kind",), "seismic_wave needs the rock section: use model type "
+                                   "valley_section"))
+            return out
+        m = cfg.model
+        try:
+            E, nu, rho, _ = m.rock(cfg) if (m.material is None or m.material in
+                                            cfg.materials) else (m.E, m.nu, m.rho, "")
+        except BuildError:
+            return out
+        cp = math.sqrt(E / ((1 - nu * nu) * rho))
+        pulse = self.make_pulse(cp, m.d)
+        need = pulse.duration + m.height / cp
+        if self.duration < need:
+            out.append((("duration",), f"duration = {self.duration:g} s ends before the pulse "
+                                       f"({pulse.duration:.4g} s) has crossed the section "
+                                       f"({m.height:g} m at c_p = {cp:.0f} m/s); allowed: "
+                                       f">= {need:.4g} s (2 crossings recommended: "
+                                       f"{pulse.duration + 2 * m.height / cp:.4g} s)"))
+        return out
+
+    def make_pulse(self, cp: float, d_base: float) -> Pulse:
+        f = self.frequency if self.frequency is not None else \
+            cp / (self.wavelength_elements * d_base)
+        return Pulse(self.pulse, f, self.amplitude, self.cycles)
+
+    def planned_steps(self, plan):
+        return max(1, int(math.ceil(self.duration / plan.dt - 1e-9)))
+
+    # ------------------------------------------------------------------ execution
+    def execute(self, ctx):
+        from geodem.io.vtk import VtkWriter
+
+        info = ctx.model.info
+        med = info["medium"]
+        d = float(info["diameter"])
+        pulse = self.make_pulse(med["cp"], float(info["d_base"]))
+        total = self.planned_steps(ctx.plan)
+        H = info["y_top"] - info["y_base"]
+        # ------------------------------------------------------------ flat reference
+        ref, ref_note = None, None
+        if self.reference:
+            t0 = time.perf_counter()
+            try:
+                ref = run_column(med, info["height"], pulse, width_elements=self.reference_width,
+                                 dt=ctx.state.dt, backend=ctx.runner.prep.backend,
+                                 record_every=self.record_every)
+                ref["wall_s"] = time.perf_counter() - t0
+            except ValueError as exc:
+                ref_note = f"reference column not measured: {exc}"
+                ctx.log(ref_note)
+        # ------------------------------------------------------------ the section
+        sim = ctx.sim
+        field = next((f for f in sim.fields if f.kind == "seismic_boundary"), None)
+        ref_x = ctx.model.reference
+        if field is None:
+            sets = boundary_sets(ref_x, d)
+            st = ctx.state
+            if self.sides == "roller":
+                side = np.concatenate([sets["left"], sets["right"]])
+
+                def roll(s):
+                    s.free[side, 0] = 0.0
+                    s.v[side, 0] = 0.0
+
+                ctx.decree(roll, "sides")
+            ctx.set_eta(0.0)
+            field = SeismicBoundary(med["rho"], med["cp"], med["cs"], med["nu"],
+                                    med["thickness"], d, info["y_base"], info["y_top"],
+                                    pulse.config(), sides=self.sides,
+                                    record_every=self.record_every, t_start=st.time)
+            field.set_sets(sets["base"], sets["left"], sets["right"], sets["surface"])
+            sim.add_field(field)
+        n_frames = max(self.gif_frames if self.gif else 0, self.snapshots, self.vtk_frames, 1)
+        chunk = max(1, total // n_frames)
+        n_last = int(math.ceil(total / chunk))
+        vtk_at = set(np.unique(np.linspace(1, n_last, self.vtk_frames).round().astype(int))
+                     .tolist()) if self.vtk_frames else set()
+        fdir = ctx.out_dir / FRAMES_DIR
+        fdir.mkdir(exist_ok=True)
+        vtk = VtkWriter(ctx.out_dir / VTK_DIR, "seismic.pvd") if vtk_at else None
+        done = ctx.state.step - ctx.start_step
+        t_wall = time.perf_counter()
+        while done < total:
+            done = min(total, (done // chunk + 1) * chunk)
+            ctx.advance(done)
+            s = ctx.state
+            k = int(math.ceil(done / chunk))
+            np.savez_compressed(fdir / f"frame_{k:05d}.npz", x=s.x.astype(np.float32),
+                                speed=np.linalg.norm(s.v, axis=1).astype(np.float32),
+                                time=s.time - field.t_start)
+            if vtk is not None and k in vtk_at:
+                vtk.write(s, s.step, ref_x)
+        wall = time.perf_counter() - t_wall
+        return self._results(ctx, field, ref, ref_note, pulse, H, d, fdir, wall)
+
+    def _results(self, ctx, field, ref, ref_note, pulse, H, d, fdir, wall):
+        info = ctx.model.info
+        med = info["medium"]
+        t, v, a = field.records()
+        rec = field.sets["receivers"]
+        xr = ctx.model.reference[rec]
+        peak_a = np.linalg.norm(a, axis=2).max(axis=0) if len(t) else np.zeros(len(rec))
+        peak_v = np.linalg.norm(v, axis=2).max(axis=0) if len(t) else np.zeros(len(rec))
+        if ref is not None:
+            a_flat, flat_src = ref["surface_peak_acceleration"], "flat reference column"
+        else:  # analytic: twice the incident peak acceleration
+            tt = np.linspace(0.0, pulse.duration, 4001)
+            a_flat = 2.0 * float(np.abs(np.gradient(pulse(tt), tt)).max())
+            flat_src = "analytic (2 x incident peak acceleration)"
+        amp = peak_a / a_flat
+        k = int(np.argmax(amp))
+        lam = med["cp"] / pulse.f
+        xc, hw = info["valley_x"], 0.5 * info["valley_width"]
+        far = (np.abs(xr[:, 0] - xc) > hw + lam) & (xr[:, 0] > info["x_min"] + lam) & \
+            (xr[:, 0] < info["x_max"] - lam)
+        with open(ctx.out_dir / AMPLIFICATION_CSV, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(("x", "y", "peak_acceleration", "peak_velocity", "amplification"))
+            w.writerows(np.column_stack([xr, peak_a, peak_v, amp]).tolist())
+        rx = {"receiver_x": xr, "t": t, "v": v, "a": a}
+        if ref is not None:
+            rx.update({"column_y": ref["y"], "column_t": ref["t"], "column_v": ref["v"],
+                       "column_a": ref["a"]})
+        np.savez_compressed(ctx.out_dir / RECORDS, **rx)
+        ref_keys = ("p_wave_speed_rel_error", "free_surface_amplification",
+                    "boundary_reflection")
+        res = {
+            "amplification_max": float(amp[k]),
+            "amplification_location_m": float(xr[k, 0]),
+            "amplification_location_y_m": float(xr[k, 1]),
+            "amplification_offset_m": float(xr[k, 0] - xc),
+            "amplification_flat_ground": float(np.median(amp[far])) if far.any() else None,
+            "flat_peak_acceleration": float(a_flat), "flat_peak_acceleration_source": flat_src,
+            "p_wave_speed_analytic": med["cp"], "s_wave_speed_analytic": med["cs"],
+            "pulse": pulse.config(), "wavelength_m": lam, "receivers": int(len(rec)),
+            "section_wall_s": wall, "boundary_field_wall_s": field.wall,
+            "boundary_field_us_per_step": 1e6 * field.wall / max(field.calls, 1),
+        }
+        for key in ref_keys:
+            res[key] = ref[key] if ref is not None else None
+        if ref is not None:
+            res["reference"] = {k: v for k, v in ref.items() if not isinstance(v, np.ndarray)}
+        else:
+            res["reference_note"] = ref_note or "reference: false"
+        ctx.summary.update({key: res[key] for key in
+                            ("amplification_max", "amplification_location_m") + ref_keys})
+        ctx.summary["amplification_flat_ground"] = res["amplification_flat_ground"]
+
+        def fmt(v, f=".3g"):
+            return "n/a" if v is None else format(v, f)
+
+        ctx.log(f"seismic wave: amplification max {amp[k]:.3g} at x = {xr[k, 0]:.1f} m "
+                f"(flat ground {fmt(res['amplification_flat_ground'])}); reference: c_p error "
+                f"{fmt(res['p_wave_speed_rel_error'])}, free-surface amplification "
+                f"{fmt(res['free_surface_amplification'])}, base reflection "
+                f"{fmt(res['boundary_reflection'])}")
+        if self.plot and ctx.cfg.outputs.plots:
+            frames = sorted(fdir.glob("frame_*.npz"))
+            vmax = 2.0 * self.amplitude
+            res["plot_snapshots"] = ctx.plot("seismic_snapshots.png", lambda p: plot_snapshots(
+                p, frames, self.snapshots, d, vmax))
+            res["plot_surface"] = ctx.plot("seismic_surface.png", lambda p: plot_surface(
+                p, t, a, xr, amp, info))
+            if ref is not None:
+                res["plot_reference"] = ctx.plot("seismic_reference.png",
+                                                 lambda p: plot_reference(p, ref, pulse))
+            if self.gif:
+                from geodem.workflow.hydrofrac import gif_writer_missing
+
+                why = gif_writer_missing()
+                if why:
+                    res["animation"] = f"skipped: {why}"
+                    ctx.runner.plots["seismic_animation.gif"] = res["animation"]
+                else:
+                    res["animation"] = ctx.plot("seismic_animation.gif", lambda p: write_gif(
+                        p, frames, d, vmax))
+        return res
+
+
+# ============================================================================ pictures
+def _mpl():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _speed_map(ax, z, d, vmax, title=True):
+    x = z["x"].astype(float)
+    lo, hi = x.min(axis=0) - d, x.max(axis=0) + d
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect("equal")
+    fig = ax.figure
+    bbox = ax.get_window_extent().transformed(fig.dpi_scale_trans.inverted())
+    pts = bbox.width * 72.0 / (hi[0] - lo[0]) * d  # one spacing in points
+    sc = ax.scatter(x[:, 0], x[:, 1], c=z["speed"], s=(1.05 * pts) ** 2, marker="h",
+                    linewidths=0, cmap="magma", vmin=0.0, vmax=vmax)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    if title:
+        ax.set_title(f"t = {float(z['time']) * 1e3:.1f} ms", fontsize=8)
+    return sc
+
+
+def plot_snapshots(path, frames, n, d, vmax):
+    """Maps of the particle speed |v| at ``n`` times spread over the run."""
+    try:
+        plt = _mpl()
+    except Exception:  # noqa: BLE001 - optional
+        return None
+    if not frames:
+        return None
+    pick = np.unique(np.linspace(0, len(frames) - 1, n).round().astype(int))
+    data = [np.load(frames[k]) for k in pick]
+    x = data[0]["x"]
+    aspect = float(np.ptp(x[:, 1]) / max(np.ptp(x[:, 0]), 1e-300))
+    cols = 2 if len(data) > 1 else 1
+    rws = int(math.ceil(len(data) / cols))
+    fig, axes = plt.subplots(rws, cols, figsize=(3.6 * cols + 0.8, 3.6 * aspect * rws + 0.5),
+                             squeeze=False, layout="constrained")
+    sc = None
+    for ax, z in zip(axes.ravel(), data):
+        sc = _speed_map(ax, z, d, vmax)
+    for ax in axes.ravel()[len(data):]:
+        ax.axis("off")
+    fig.colorbar(sc, ax=axes.ravel().tolist(), label="particle speed |v| [m/s]", shrink=0.8)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_surface(path, t, a, xr, amp, info):
+    """Ground-line record (|a| against x and time) and the amplification along the ground."""
+    try:
+        plt = _mpl()
+    except Exception:  # noqa: BLE001
+        return None
+    if len(t) == 0:
+        return None
+    order = np.argsort(xr[:, 0])
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True, layout="constrained")
+    mag = np.linalg.norm(a, axis=2)[:, order]
+    im = ax1.pcolormesh(xr[order, 0], t * 1e3, mag, cmap="viridis", shading="nearest")
+    fig.colorbar(im, ax=ax1, label="|a| [m/s$^2$]")
+    ax1.set_ylabel("time [ms]")
+    ax1.set_title("ground-line acceleration")
+    ax2.plot(xr[order, 0], amp[order], "C3-", lw=1.2, label="amplification")
+    ax2.axhline(1.0, color="k", lw=0.8, ls=":")
+    ax2.set_xlabel("x [m]")
+    ax2.set_ylabel("peak |a| / flat free surface")
+    ax3 = ax2.twinx()
+    ax3.plot(xr[order, 0], xr[order, 1], color="0.6", lw=1, label="ground line")
+    ax3.set_ylabel("ground elevation [m]", color="0.5")
+    k = int(np.argmax(amp))
+    ax2.plot([xr[k, 0]], [amp[k]], "k^", label=f"max {amp[k]:.2f} at x = {xr[k, 0]:.0f} m")
+    h1, l1 = ax2.get_legend_handles_labels()
+    h2, l2 = ax3.get_legend_handles_labels()
+    ax2.legend(h1 + h2, l1 + l2, fontsize=8, loc="upper left")
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_reference(path, ref, pulse):
+    """The flat column: vertical velocity traces against height and the arrival-time fit."""
+    try:
+        plt = _mpl()
+    except Exception:  # noqa: BLE001
+        return None
+    t, y, v = ref["t"], ref["y"], ref["v"]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(9, 4.2), layout="constrained")
+    step = max(1, len(y) // 12)
+    gain = 0.8 * step * float(np.diff(y).mean()) / max(pulse.amp, 1e-300)
+    for k in range(0, len(y), step):
+        ax1.plot(t * 1e3, y[k] + gain * v[:, k, 1], "k-", lw=0.7)
+    ax1.set_xlabel("time [ms]")
+    ax1.set_ylabel("height above the base [m] (trace: v$_y$)")
+    ax1.set_title(f"flat column: A$_{{surface}}$/A$_{{inc}}$ = "
+                  f"{ref['free_surface_amplification']:.3f}, reflection "
+                  f"{ref['boundary_reflection'] if ref['boundary_reflection'] is not None else float('nan'):.3f}",
+                  fontsize=9)
+    hy, ht = np.asarray(ref["arrival_heights"]), np.asarray(ref["arrival_times"])
+    ax2.plot(hy, ht * 1e3, "o", ms=4, label="arrival (energy centroid)")
+    c = ref["p_wave_speed_analytic"]
+    ax2.plot(hy, (ref["arrival_intercept"] + hy / ref["p_wave_speed_measured"]) * 1e3, "C0-",
+             label=f"fit: c = {ref['p_wave_speed_measured']:.0f} m/s")
+    ax2.plot(hy, (pulse.t_c + hy / c) * 1e3, "k--", lw=1, label=f"c_p = {c:.0f} m/s")
+    ax2.set_xlabel("height above the base [m]")
+    ax2.set_ylabel("arrival time [ms]")
+    ax2.legend(fontsize=8)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def write_gif(path, frames, d, vmax):
+    """Animation of the particle-speed maps (imageio, else matplotlib's PillowWriter; None when
+    neither can write a GIF)."""
+    try:
+        plt = _mpl()
+    except Exception:  # noqa: BLE001
+        return None
+    if not frames:
+        return None
+    x = np.load(frames[0])["x"]
+    aspect = float(np.ptp(x[:, 1]) / max(np.ptp(x[:, 0]), 1e-300))
+    fig, ax = plt.subplots(figsize=(6.0, 6.0 * aspect + 0.4))
+
+    def render(f):
+        ax.clear()
+        _speed_map(ax, np.load(f), d, vmax)
+        fig.canvas.draw()
+        return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+
+    try:
+        import imageio.v2 as imageio
+
+        imageio.mimsave(path, [render(f) for f in frames], duration=0.12, loop=0)
+        plt.close(fig)
+        return path
+    except ImportError:
+        pass
+    try:
+        from matplotlib.animation import FuncAnimation, PillowWriter
+
+        anim = FuncAnimation(fig, lambda k: render(frames[k]), frames=len(frames))
+        anim.save(str(path), writer=PillowWriter(fps=8))
+        plt.close(fig)
+        return path
+    except Exception:  # noqa: BLE001 - no Pillow: skipped
+        plt.close(fig)
+        return None
+
+
+__all__ = ["ValleySection", "SeismicWave", "SeismicBoundary", "Pulse", "lattice_medium",
+           "lattice_E_nu", "section_points", "boundary_sets", "build_section", "run_column",
+           "measure_column"]
