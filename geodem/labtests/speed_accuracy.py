@@ -32,8 +32,9 @@ Cases (``error`` is always a relative error, >= 0):
 * ``ucs``: ``workflows/ucs.yaml`` at ``resolution`` elements across the height; the reference is
   the calibration target of the material (calibrated at 40 across): ``max(|E / E_t - 1|, |UCS /
   Cu_t - 1|)``. Not in the default set (tens of seconds per point).
-* ``column_collapse``: hook for the granular column collapse workflow (runout against Lube et
-  al. 2004) once ``geodem/workflow/collapse.py`` exists: it needs only the function body.
+* ``column_collapse``: hook for the granular column collapse workflow (runout against the law
+  of Lube et al. 2005) once ``geodem/workflow/collapse.py`` is part of geodem; not in the default
+  set.
 
 The engine is float64 only: every point is recorded with ``precision = float64``.
 """
@@ -305,17 +306,22 @@ def ucs(dt_fraction, resolution, backend, damping) -> Point:
 
 
 def column_collapse(dt_fraction, resolution, backend, damping) -> Point:
-    """Hook: granular column collapse (runout against Lube et al. 2004). To be filled in when
-    ``geodem/workflow/collapse.py`` and its workflow exist: run it at ``resolution`` elements
-    across the column and ``simulation.dt_fraction = dt_fraction`` (see :func:`ucs`) and return
-    the relative runout error."""
+    """Hook for the granular column collapse (``workflows/column_collapse.yaml``, one column of
+    aspect ratio 1, ``resolution`` elements across it, ``damping`` the step's global damping):
+    the relative runout error against the law of Lube et al. (2005) (an empirical reference,
+    not a converged run). Not in the default set; unavailable until the collapse workflow is
+    part of geodem."""
     import importlib.util
 
-    if importlib.util.find_spec("geodem.workflow.collapse") is None:
-        raise CaseUnavailable("column_collapse: geodem/workflow/collapse.py is not in this "
-                              "version of geodem yet")
-    raise CaseUnavailable("column_collapse: the collapse workflow exists but this study's hook "
-                          "(geodem.labtests.speed_accuracy.column_collapse) is not written yet")
+    wf = _repo_file("workflows/column_collapse.yaml")
+    if importlib.util.find_spec("geodem.workflow.collapse") is None or not wf.exists():
+        raise CaseUnavailable("column_collapse: geodem/workflow/collapse.py and "
+                              "workflows/column_collapse.yaml are not in this version of geodem")
+    sets = ["model.aspect_ratios=[1.0]", f"model.scale={float(resolution) / 10.0!r}",
+            f"simulation.dt_fraction={dt_fraction!r}", f"steps.0.damping={damping!r}"]
+    s, wall = _workflow(wf, sets, backend, "runout_rel_error")
+    return Point(float(s["runout_rel_error"]), wall, int(s.get("n_elements") or 0),
+                 int(s.get("steps") or 0))
 
 
 # ================================================================================= grid
@@ -337,6 +343,7 @@ class Case:
     numpy_dt: tuple = ()
     numpy_resolution: tuple = ()
     gpu: bool = True  # cupy runs the grid when installed
+    damping_is_problem: bool = False  # damping changes the reference: one front per value
     quick: dict = field(default_factory=dict)
     default: bool = True
 
@@ -351,17 +358,19 @@ class Case:
 CASES = {
     "two_balls": Case(
         two_balls, "TwoBalls (damped oscillator)", "max |u - u_exact| / A over 10 periods",
-        (0.005, 0.01, 0.02, 0.05, 0.1), damping=(0.0, 0.1), damping_of="eta / eta_c",
+        (0.002, 0.005, 0.01, 0.02, 0.05, 0.1), damping=(0.0, 0.1), damping_of="eta / eta_c",
+        damping_is_problem=True,
         numpy_dt=(0.02, 0.1), numpy_resolution=(None,),
         quick={"dt_fraction": (0.005, 0.02), "damping": (0.0,), "numpy_dt": ()}),
     "wave_speed": Case(
         wave_speed, "bonded chain: long-wave speed", "|c / (d sqrt(K/m)) - 1|",
-        (0.02, 0.05, 0.1), (50, 100, 200, 400, 800), resolution_of="elements along the chain",
+        (0.02, 0.05, 0.1), (50, 100, 200, 400, 800, 1600),
+        resolution_of="elements along the chain",
         numpy_dt=(0.1,), numpy_resolution=(50, 100),
         quick={"dt_fraction": (0.05,), "resolution": (50, 200), "numpy_resolution": ()}),
     "lattice": Case(
         lattice, "triangular lattice between platens: E", "|E / E_lattice - 1|",
-        (0.01, 0.02, 0.05, 0.08), (8, 12, 16, 24, 32), damping=(0.5, 1.0, 2.0),
+        (0.01, 0.02, 0.05, 0.08), (8, 12, 16, 24, 32, 48), damping=(0.5, 1.0, 2.0),
         resolution_of="rows across the height", damping_of="x standard damping",
         numpy_dt=(0.05,), numpy_resolution=(8, 12),
         quick={"dt_fraction": (0.05,), "resolution": (8, 16), "damping": (1.0,),
@@ -381,8 +390,10 @@ CASES = {
         (0.05, 0.1), (15, 20, 30), resolution_of="elements across the height",
         quick={"dt_fraction": (0.1,), "resolution": (15,)}),
     "column_collapse": Case(
-        column_collapse, "granular column collapse (runout)", "|runout / runout_ref - 1|",
-        (0.02, 0.05), (10, 20), resolution_of="elements across the column", default=False),
+        column_collapse, "granular column collapse, a = 1 (Lube et al. 2005)",
+        "|runout / runout_law - 1|", (0.04, 0.08), (10, 20), damping=(0.0,),
+        resolution_of="elements across the column", damping_of="eta tau / m", gpu=False,
+        quick={"dt_fraction": (0.08,), "resolution": (10,)}, default=False),
 }
 DEFAULT_CASES = [k for k, c in CASES.items() if c.default]
 
@@ -489,9 +500,11 @@ def speed_accuracy_study(out_dir, cases=None, quick=False, backend=None, progres
             case_rows.append(row)
             if progress:
                 progress(row)
-        ok = [x for x in case_rows if x["status"] == "ok"]
-        for x, on in zip(ok, pareto_front([x["wall_s"] for x in ok], [x["error"] for x in ok])):
-            x["pareto"] = bool(on)
+        for prob in problems(case_rows, name):
+            ok = [x for x in prob if x["status"] == "ok"]
+            on = pareto_front([x["wall_s"] for x in ok], [x["error"] for x in ok])
+            for x, o in zip(ok, on):
+                x["pareto"] = bool(o)
         rows += case_rows
     rec = {"cases": names, "quick": bool(quick), "precision": PRECISION,
            "numba_threads": int(numba.get_num_threads()), "rows": rows,
@@ -514,14 +527,28 @@ def speed_accuracy_study(out_dir, cases=None, quick=False, backend=None, progres
 TARGETS = (1e-1, 1e-2, 1e-3, 1e-4)
 
 
-def fastest_within(rows, name) -> dict:
-    """``{target: row}``: the fastest point of case ``name`` with error <= target."""
-    ok = [x for x in rows if x["case"] == name and x["status"] == "ok"]
-    res = {}
-    for t in TARGETS:
-        sel = [x for x in ok if x["error"] <= t]
-        res[f"{t:g}"] = min(sel, key=lambda x: x["wall_s"]) if sel else None
-    return res
+def problems(rows, name) -> list:
+    """The rows of case ``name`` split into problems, each with its own Pareto front: one
+    per damping value where damping changes the reference (TwoBalls), else one."""
+    sel = [x for x in rows if x["case"] == name]
+    if not CASES[name].damping_is_problem:
+        return [sel]
+    return [[x for x in sel if x["damping"] == d] for d in dict.fromkeys(x["damping"]
+                                                                        for x in sel)]
+
+
+def fastest_within(rows, name) -> list:
+    """Per problem of case ``name`` (:func:`problems`): ``{target: row}``, the fastest point
+    with error <= target (None if none)."""
+    out = []
+    for prob in problems(rows, name):
+        ok = [x for x in prob if x["status"] == "ok"]
+        res = {}
+        for t in TARGETS:
+            sel = [x for x in ok if x["error"] <= t]
+            res[f"{t:g}"] = min(sel, key=lambda x: x["wall_s"]) if sel else None
+        out.append(res)
+    return out
 
 
 def _fmt(v, digits=4):
@@ -559,9 +586,10 @@ def markdown(rows, names, targets) -> str:
         lines += [f"## {n}: {c.title}", "",
                   f"error = {c.error_of}; dt fraction of the {c.dt_of}; resolution = "
                   f"{c.resolution_of}; damping = {c.damping_of}.", ""]
-        for t, x in targets[n].items():
-            lines.append(f"- error <= {t}: " + (f"{_label(x)}, {x['wall_s']:.3g} s, error "
-                                                f"{x['error']:.3g}" if x else "no point"))
+        for res in targets[n]:
+            for t, x in res.items():
+                lines.append(f"- error <= {t}: " + (f"{_label(x)}, {x['wall_s']:.3g} s, error "
+                                                    f"{x['error']:.3g}" if x else "no point"))
         lines += ["", "| backend | dt fraction | resolution | damping | elements | steps | "
                       "wall [s] | error | front |", "|---|---|---|---|---|---|---|---|---|"]
         sel = sorted((x for x in rows if x["case"] == n),
@@ -602,15 +630,19 @@ def plot_case(path, name, rows):
             ax.plot([x["wall_s"] for x in sel], [max(x["error"], floor) for x in sel],
                     marks[f], color=colours[k % len(colours)], ms=5, ls="none",
                     mfc="none" if be == "numpy" else colours[k % len(colours)],
-                    label=lab if f == dts[0] else None)
+                    label=lab)
+            lab = None  # one legend entry per series
             if c.resolution_of != "-":
                 for x in sel:
                     ax.annotate(str(x["resolution"]), (x["wall_s"], max(x["error"], floor)),
                                 textcoords="offset points", xytext=(3, 2), fontsize=6)
-    front = sorted((x for x in ok if x["pareto"]), key=lambda x: x["wall_s"])
-    if front:
-        ax.step([x["wall_s"] for x in front], [max(x["error"], floor) for x in front],
-                where="post", color="k", lw=0.9, ls="--", label="Pareto front")
+    for k, prob in enumerate(problems(ok, name)):
+        front = sorted((x for x in prob if x["pareto"]), key=lambda x: x["wall_s"])
+        if front:
+            ax.step([x["wall_s"] for x in front], [max(x["error"], floor) for x in front],
+                    where="post", color="k", lw=0.9, ls="--" if k == 0 else ":",
+                    label="Pareto front" + (f" (damping {front[0]['damping']:g})"
+                                            if c.damping_is_problem else ""))
     for f in dts:  # marker key
         ax.plot([], [], marks[f], color="grey", mfc="none", ls="none", label=f"dt {f:g}")
     ax.set_xscale("log")
