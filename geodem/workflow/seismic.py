@@ -89,6 +89,12 @@ FRAMES_DIR = "seismic_frames"
 VTK_DIR = "seismic_vtk"
 RECORDS = "seismic_receivers.npz"
 AMPLIFICATION_CSV = "seismic_amplification.csv"
+#: accelerations are low-passed at this multiple of the pulse frequency before their peaks are
+#: taken (:func:`lowpass`)
+LOWPASS = 3.0
+#: the amplification profile is averaged along the ground line over this fraction of the P
+#: wavelength (the staircase of a slope makes neighbouring receivers differ by ~15 %)
+SMOOTH = 0.5
 
 
 # ============================================================================ the medium
@@ -271,7 +277,8 @@ class SeismicBoundary(CoupledField):
         self.sides = sides
         self.record_every = int(record_every)
         self.t_start = float(t_start)
-        self.sets = {k: np.zeros(0, np.int64) for k in ("base", "left", "right", "receivers")}
+        self.sets = {k: np.zeros(0, np.int64) for k in ("base", "left", "right", "receivers",
+                                                        "patch_idx", "patch_ptr")}
         self.rec_t, self.rec_v, self.rec_a = [], [], []
         self.wall, self.calls = 0.0, 0  # its own cost (seconds, couplings)
 
@@ -312,15 +319,28 @@ class SeismicBoundary(CoupledField):
                 "sides": self.sides, "records": len(self.rec_t)}
 
     # -- set-up
-    def set_sets(self, base, left, right, receivers, state=None) -> None:
+    def set_sets(self, base, left, right, receivers, state) -> None:
+        """The boundary sets and the receivers; a receiver records the mean motion of its
+        element and the elements bonded to it (a patch about two spacings across: a single
+        staircase corner of a slope rings on its own)."""
+        from geodem.core.state import BONDED
+
+        receivers = np.asarray(receivers, np.int64)
+        patches = [np.concatenate([[r], state.nbr[r][state.cstate[r] == BONDED]])
+                   for r in receivers]
         self.sets = {"base": np.asarray(base, np.int64), "left": np.asarray(left, np.int64),
-                     "right": np.asarray(right, np.int64),
-                     "receivers": np.asarray(receivers, np.int64)}
-        if state is not None:
-            self._prepare(state)
+                     "right": np.asarray(right, np.int64), "receivers": receivers,
+                     "patch_idx": np.concatenate(patches).astype(np.int64) if patches else
+                     np.zeros(0, np.int64),
+                     "patch_ptr": np.cumsum([0] + [len(p) for p in patches]).astype(np.int64)}
+        self._prepare(state)
 
     def _prepare(self, st) -> None:
         self._state = st
+        ptr = self.sets["patch_ptr"]
+        self._patch_start = ptr[:-1] if len(ptr) > 1 else np.zeros(0, np.int64)
+        self._patch_cnt = np.diff(ptr)[:, None].astype(float) if len(ptr) > 1 else \
+            np.ones((0, 1))
         base, left, right = self.sets["base"], self.sets["left"], self.sets["right"]
         if self.sides == "roller":
             left = right = np.zeros(0, np.int64)
@@ -368,10 +388,10 @@ class SeismicBoundary(CoupledField):
                 f[side, 1] -= zs * vs[:, 1]
         st.fload[self._idx] = f
         if self.record_every and st.step % self.record_every == 0:
-            r = self.sets["receivers"]
+            idx, start, cnt = self.sets["patch_idx"], self._patch_start, self._patch_cnt
             self.rec_t.append(st.time - self.t_start)
-            self.rec_v.append(v[r].copy())
-            self.rec_a.append(st.a[r].copy())
+            self.rec_v.append(np.add.reduceat(v[idx], start, axis=0) / cnt)
+            self.rec_a.append(np.add.reduceat(st.a[idx], start, axis=0) / cnt)
         self.wall += time.perf_counter() - c0
         self.calls += 1
         return 1
@@ -404,19 +424,49 @@ def run_column(medium: dict, height: float, pulse: Pulse, *, width_elements: int
     field = SeismicBoundary(medium["rho"], medium["cp"], medium["cs"], medium["nu"],
                             medium["thickness"], d, info["y_base"], info["y_top"],
                             pulse.config(), sides="roller", record_every=record_every)
-    field.set_sets(sets["base"], sets["left"], sets["right"], line)
+    field.set_sets(sets["base"], sets["left"], sets["right"], line, st)
     sim.add_field(field)
     H = info["y_top"] - info["y_base"]
     if duration is None:
         duration = pulse.t_c + 2.5 * H / medium["cp"] + 1.5 * pulse.half
     nsteps = int(math.ceil(duration / sim.state.dt))
     sim.run(nsteps)
-    t, v, a = field.records()
+    t, v, a_raw = field.records()
+    a = lowpass(a_raw, t, LOWPASS * pulse.f)
     y = st.x_ref[line, 1] - info["y_base"]
     out = measure_column(t, y, v, a, H, medium["cp"], pulse)
     out.update({"t": t, "y": y, "v": v, "a": a, "height": H, "elements": int(st.n),
                 "steps": nsteps, "dt": sim.state.dt,
                 "energy_closure_error": sim.energies()["closure_error"]})
+    return out
+
+
+def lowpass(a, t, fc: float, order: int = 4):
+    """Zero-phase Butterworth low-pass (``order``, cut-off ``fc`` [Hz]) of records ``a`` (time
+    along axis 0, samples ``t`` equally spaced): removes the lattice's own high-frequency ringing
+    (staircase corners of the slopes ring at ~ c / d) from the peak accelerations."""
+    from scipy.signal import butter, sosfiltfilt
+
+    if len(t) < 4 * order + 4:
+        return np.asarray(a, float)
+    fs = 1.0 / float(t[1] - t[0])
+    if fc >= 0.45 * fs:
+        return np.asarray(a, float)
+    sos = butter(order, fc, fs=fs, output="sos")
+    return sosfiltfilt(sos, np.asarray(a, float), axis=0)
+
+
+def ground_smooth(xr, values, width: float):
+    """Running mean of ``values`` at the ground-line points ``xr`` over ``width`` [m] of arc
+    length along the line (points ordered by x)."""
+    order = np.argsort(xr[:, 0], kind="stable")
+    p = xr[order]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    lo = np.searchsorted(s, s - 0.5 * width, side="left")
+    hi = np.searchsorted(s, s + 0.5 * width, side="right")
+    c = np.concatenate([[0.0], np.cumsum(np.asarray(values, float)[order])])
+    out = np.empty(len(values))
+    out[order] = (c[hi] - c[lo]) / (hi - lo)
     return out
 
 
@@ -711,7 +761,7 @@ class SeismicWave(StepBase):
                                     med["thickness"], d, info["y_base"], info["y_top"],
                                     pulse.config(), sides=self.sides,
                                     record_every=self.record_every, t_start=st.time)
-            field.set_sets(sets["base"], sets["left"], sets["right"], sets["surface"])
+            field.set_sets(sets["base"], sets["left"], sets["right"], sets["surface"], st)
             sim.add_field(field)
         n_frames = max(self.gif_frames if self.gif else 0, self.snapshots, self.vtk_frames, 1)
         chunk = max(1, total // n_frames)
@@ -739,7 +789,8 @@ class SeismicWave(StepBase):
     def _results(self, ctx, field, ref, ref_note, pulse, H, d, fdir, wall):
         info = ctx.model.info
         med = info["medium"]
-        t, v, a = field.records()
+        t, v, a_raw = field.records()
+        a = lowpass(a_raw, t, LOWPASS * pulse.f)
         rec = field.sets["receivers"]
         xr = ctx.model.reference[rec]
         peak_a = np.linalg.norm(a, axis=2).max(axis=0) if len(t) else np.zeros(len(rec))
@@ -750,17 +801,19 @@ class SeismicWave(StepBase):
             tt = np.linspace(0.0, pulse.duration, 4001)
             a_flat = 2.0 * float(np.abs(np.gradient(pulse(tt), tt)).max())
             flat_src = "analytic (2 x incident peak acceleration)"
-        amp = peak_a / a_flat
-        k = int(np.argmax(amp))
         lam = med["cp"] / pulse.f
+        amp_raw = peak_a / a_flat
+        amp = ground_smooth(xr, amp_raw, SMOOTH * lam)
+        k = int(np.argmax(amp))
         xc, hw = info["valley_x"], 0.5 * info["valley_width"]
         far = (np.abs(xr[:, 0] - xc) > hw + lam) & (xr[:, 0] > info["x_min"] + lam) & \
             (xr[:, 0] < info["x_max"] - lam)
         with open(ctx.out_dir / AMPLIFICATION_CSV, "w", newline="") as fh:
             w = csv.writer(fh)
-            w.writerow(("x", "y", "peak_acceleration", "peak_velocity", "amplification"))
-            w.writerows(np.column_stack([xr, peak_a, peak_v, amp]).tolist())
-        rx = {"receiver_x": xr, "t": t, "v": v, "a": a}
+            w.writerow(("x", "y", "peak_acceleration", "peak_velocity", "amplification_receiver",
+                        "amplification"))
+            w.writerows(np.column_stack([xr, peak_a, peak_v, amp_raw, amp]).tolist())
+        rx = {"receiver_x": xr, "t": t, "v": v, "a": a_raw, "a_lowpass": a}
         if ref is not None:
             rx.update({"column_y": ref["y"], "column_t": ref["t"], "column_v": ref["v"],
                        "column_a": ref["a"]})
@@ -772,6 +825,8 @@ class SeismicWave(StepBase):
             "amplification_location_m": float(xr[k, 0]),
             "amplification_location_y_m": float(xr[k, 1]),
             "amplification_offset_m": float(xr[k, 0] - xc),
+            "amplification_max_receiver": float(amp_raw.max()),
+            "amplification_smoothing_m": SMOOTH * lam,
             "amplification_flat_ground": float(np.median(amp[far])) if far.any() else None,
             "flat_peak_acceleration": float(a_flat), "flat_peak_acceleration_source": flat_src,
             "p_wave_speed_analytic": med["cp"], "s_wave_speed_analytic": med["cs"],
@@ -803,7 +858,7 @@ class SeismicWave(StepBase):
             res["plot_snapshots"] = ctx.plot("seismic_snapshots.png", lambda p: plot_snapshots(
                 p, frames, self.snapshots, d, vmax))
             res["plot_surface"] = ctx.plot("seismic_surface.png", lambda p: plot_surface(
-                p, t, a, xr, amp, info))
+                p, t, a, xr, amp, info, amp_raw))
             if ref is not None:
                 res["plot_reference"] = ctx.plot("seismic_reference.png",
                                                  lambda p: plot_reference(p, ref, pulse))
@@ -875,7 +930,7 @@ def plot_snapshots(path, frames, n, d, vmax):
     return path
 
 
-def plot_surface(path, t, a, xr, amp, info):
+def plot_surface(path, t, a, xr, amp, info, amp_raw=None):
     """Ground-line record (|a| against x and time) and the amplification along the ground."""
     try:
         plt = _mpl()
@@ -890,7 +945,10 @@ def plot_surface(path, t, a, xr, amp, info):
     fig.colorbar(im, ax=ax1, label="|a| [m/s$^2$]")
     ax1.set_ylabel("time [ms]")
     ax1.set_title("ground-line acceleration")
-    ax2.plot(xr[order, 0], amp[order], "C3-", lw=1.2, label="amplification")
+    if amp_raw is not None:
+        ax2.plot(xr[order, 0], amp_raw[order], "-", color="C3", alpha=0.3, lw=0.7,
+                 label="single receivers")
+    ax2.plot(xr[order, 0], amp[order], "C3-", lw=1.4, label="amplification (smoothed)")
     ax2.axhline(1.0, color="k", lw=0.8, ls=":")
     ax2.set_xlabel("x [m]")
     ax2.set_ylabel("peak |a| / flat free surface")
