@@ -5,7 +5,7 @@ section 7).
   cutting direction x, the last axis vertical, 3-D: y across the cut) made of alternating
   layers of two materials, ``soft`` and ``strong``, whose interfaces dip at ``dip_deg`` in the
   x-vertical plane (positive: the layers go down towards +x). Layer of a point: its depth
-  below the surface measured along the layer normal, ``u = (z_s - z) cos(dip) + x sin(dip) +
+  below the surface measured along the layer normal, ``u = (z_s - z) cos(dip) - x sin(dip) +
   layer_offset``, split into periods ``t_soft + t_strong`` (the ``first`` layer from u = 0).
   Every rock element gets the element parameters of its layer's material (kn, ks, xb, fs0,
   mu, mass; calibrated per-size parameters or the lattice conversion, scaled with the element
@@ -90,10 +90,11 @@ def layer_of(x, surface: float, dip_deg: float, t_soft: float, t_strong: float,
              first: str = "soft", offset: float = 0.0):
     """``(material, layer)`` of points ``x`` (N, dim): material 0 soft / 1 strong, layer the
     running layer number from the surface pattern (0 = ``first``). The layer coordinate is the
-    depth along the layer normal ``u = (surface - z) cos(dip) + x sin(dip) + offset``."""
+    depth along the layer normal ``u = (surface - z) cos(dip) - x sin(dip) + offset`` (dip > 0:
+    the interfaces go down towards +x)."""
     x = np.asarray(x, float)
     th = math.radians(dip_deg)
-    u = (surface - x[:, -1]) * math.cos(th) + x[:, 0] * math.sin(th) + offset
+    u = (surface - x[:, -1]) * math.cos(th) - x[:, 0] * math.sin(th) + offset
     t1, t2 = (t_soft, t_strong) if first == "soft" else (t_strong, t_soft)
     period = t1 + t2
     k = np.floor(u / period)
@@ -580,7 +581,7 @@ class DiscCutter(StepBase):
             ctx.decree(lambda s: field.apply(sim), book_energy=False)
         ref = ctx.model.reference
         mat, _ = model.layers(ref, info["surface"])
-        bonded0 = _bond_count(st)
+        bonded0 = _bond_count(st, mat)
         w0 = 0.0  # the cutter is at rest before this step: its booked work starts at 0
         # ---------------------------------------------------------------- sampling
         path = ctx.out_dir / CURVE
@@ -697,6 +698,8 @@ class DiscCutter(StepBase):
             "tan_half_contact_angle": math.tan(0.5 * phi), "contact_angle": phi,
             "broken_bonds": len(log), "broken_bonds_soft": ns, "broken_bonds_strong": nh,
             "broken_bonds_interface": ni, "bonds_at_start": bonded0,
+            "broken_fraction_soft": ns / bonded0["soft"] if bonded0["soft"] else None,
+            "broken_fraction_strong": nh / bonded0["strong"] if bonded0["strong"] else None,
             "cracks_tensile": int((log["type"] == 1).sum()),
             "cracks_shear": int((log["type"] == 2).sum()),
             "cutting_work": work, "removed_elements": int(det.size),
@@ -730,7 +733,8 @@ class DiscCutter(StepBase):
         keys = ("mean_normal_force", "peak_normal_force", "mean_rolling_force",
                 "mean_side_force", "broken_bonds", "specific_energy", "rolling_coefficient",
                 "cutting_work", "heat_total", "csm_normal_force", "csm_rolling_force",
-                "normal_force_over_csm", "normal_force_soft", "normal_force_strong")
+                "normal_force_over_csm", "normal_force_soft", "normal_force_strong",
+                "broken_fraction_soft", "broken_fraction_strong")
         ctx.summary.update({k: res[k] for k in keys})
         ctx.log(f"disc cutter: F_n = {mean_n:.4g} N (peak {res['peak_normal_force']:.4g} N), "
                 f"F_r = {mean_r:.4g} N, F_r/F_n = {res['rolling_coefficient']:.3g} "
@@ -787,15 +791,23 @@ def groups_members(st, name):
     return groups.members(st, name)
 
 
-def _bond_count(st) -> int:
+def _bond_count(st, mat) -> dict:
+    """Intact bonds: ``total``, ``soft`` (both elements soft), ``strong``, ``interface``."""
     from geodem.core.state import BONDED
 
-    return int((st.cstate == BONDED).sum() // 2)
+    i, k = np.nonzero(st.cstate == BONDED)
+    j = st.nbr[i, k]
+    once = i < j
+    mi, mj = mat[i[once]], mat[j[once]]
+    return {"total": int(once.sum()), "soft": int(((mi == SOFT) & (mj == SOFT)).sum()),
+            "strong": int(((mi == STRONG) & (mj == STRONG)).sum()),
+            "interface": int((mi != mj).sum())}
 
 
 def detached(st, anchor, candidates) -> np.ndarray:
-    """Elements of ``candidates`` not joined to any ``anchor`` element by a chain of intact
-    bonds (connected components of the bond graph)."""
+    """Elements of ``candidates`` neither joined to an ``anchor`` element by a chain of intact
+    bonds nor part of the largest bonded cluster (the block, should a crack along the fixed
+    base have cut it off): connected components of the bond graph."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -805,8 +817,9 @@ def detached(st, anchor, candidates) -> np.ndarray:
     j = st.nbr[i, k]
     g = coo_matrix((np.ones(i.size), (i, j)), shape=(st.n, st.n))
     _, lab = connected_components(g, directed=False)
-    keep = np.isin(lab, np.unique(lab[anchor]))
     cand = np.asarray(candidates)
+    big = np.argmax(np.bincount(lab[cand])) if cand.size else -1
+    keep = np.isin(lab, np.append(np.unique(lab[anchor]), big))
     return cand[~keep[cand]]
 
 
