@@ -686,6 +686,9 @@ class SeismicWave(StepBase):
     vtk_frames: Int = F(6, ge=0, le=100, description="Frames written to seismic_vtk/ (.vtp)")
     gif: bool = F(True, description="Write seismic_animation.gif")
     gif_frames: Int = F(40, ge=2, le=300, description="Frames of the animation")
+    edge_exclusion: float = F(1.5, ge=0, le=10,
+                              description="amplification_max is searched on the ground more "
+                                          "than this many P wavelengths from the sides")
     plot: bool = F(True, description="Draw the pictures (needs matplotlib)")
 
     def check(self, cfg, groups):
@@ -804,7 +807,11 @@ class SeismicWave(StepBase):
         lam = med["cp"] / pulse.f
         amp_raw = peak_a / a_flat
         amp = ground_smooth(xr, amp_raw, SMOOTH * lam)
-        k = int(np.argmax(amp))
+        edge = self.edge_exclusion * lam
+        inner = (xr[:, 0] >= info["x_min"] + edge) & (xr[:, 0] <= info["x_max"] - edge)
+        if not inner.any():
+            inner[:] = True
+        k = int(np.flatnonzero(inner)[np.argmax(amp[inner])])
         xc, hw = info["valley_x"], 0.5 * info["valley_width"]
         far = (np.abs(xr[:, 0] - xc) > hw + lam) & (xr[:, 0] > info["x_min"] + lam) & \
             (xr[:, 0] < info["x_max"] - lam)
@@ -825,7 +832,10 @@ class SeismicWave(StepBase):
             "amplification_location_m": float(xr[k, 0]),
             "amplification_location_y_m": float(xr[k, 1]),
             "amplification_offset_m": float(xr[k, 0] - xc),
-            "amplification_max_receiver": float(amp_raw.max()),
+            "amplification_max_receiver": float(amp_raw[inner].max()),
+            "amplification_max_whole_line": float(amp.max()),
+            "amplification_whole_line_location_m": float(xr[int(np.argmax(amp)), 0]),
+            "edge_exclusion_m": edge,
             "amplification_smoothing_m": SMOOTH * lam,
             "amplification_flat_ground": float(np.median(amp[far])) if far.any() else None,
             "flat_peak_acceleration": float(a_flat), "flat_peak_acceleration_source": flat_src,
