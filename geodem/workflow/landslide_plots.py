@@ -1,0 +1,214 @@
+"""Pictures of the ``landslide`` step (matplotlib, off-screen): velocity history, deposit map,
+snapshots and the GIF animation. Each function returns the path, or None when matplotlib is not
+usable (the step then says "skipped" in summary.json)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def _plt():
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        return plt
+    except Exception:  # noqa: BLE001 - plots are optional
+        return None
+
+
+def velocity_history(path, a, res):
+    """Mean and largest element speed of the slide body, and its mass centre's horizontal
+    travel, against the time since the trigger."""
+    plt = _plt()
+    if plt is None or len(a) == 0:
+        return None
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(6.4, 5.6), sharex=True)
+    t = a[:, 1]
+    a1.plot(t, a[:, 2], "C0-", label=f"mean speed (max {res['max_velocity']:.3g} m/s)")
+    a1.plot(t, a[:, 3], "C1-", lw=0.8, label="fastest element")
+    a1.set_ylabel("speed [m/s]")
+    a1.set_title(f"slide body: {res['slide_elements']} elements, stopped by "
+                 f"{res['stopped_by']}")
+    a1.legend(fontsize="small")
+    a1.grid(alpha=0.3)
+    a2.plot(t, a[:, 5] - a[0, 5], "C2-", label="mass centre: horizontal travel")
+    a2.plot(t, a[0, 6] - a[:, 6], "C3-", label="mass centre: drop")
+    a2.set_xlabel("time since the trigger [s]")
+    a2.set_ylabel("[m]")
+    a2.legend(fontsize="small")
+    a2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def _discs(ax, xy, r, colours, **kw):
+    from matplotlib.collections import EllipseCollection
+
+    coll = EllipseCollection(2 * r, 2 * r, np.zeros_like(r), units="xy", offsets=xy,
+                             offset_transform=ax.transData, **kw)
+    if colours is not None and np.ndim(colours) == 1 and np.asarray(colours).dtype.kind == "f":
+        coll.set_array(np.asarray(colours))
+    elif colours is not None:
+        coll.set_facecolor(colours)
+    ax.add_collection(coll)
+    return coll
+
+
+def _section_view(ax, ref, r, slide, xs, speed, info, vmax, title):
+    """A 2-D section: ground grey, slide elements coloured by speed, terrain and sliding
+    surface lines."""
+    ground = np.setdiff1d(np.arange(len(r)), slide)
+    _discs(ax, ref[ground], r[ground], "0.8", edgecolors="none")
+    coll = _discs(ax, xs, r[slide], speed, cmap="plasma", edgecolors="none")
+    coll.set_clim(0.0, vmax)
+    prof = info.get("profile")
+    if prof:
+        ax.plot(prof["s"], prof["top"], "k-", lw=0.7)
+        ax.plot(prof["s"], prof["slip"], "k--", lw=0.6)
+    ax.set_xlim(ref[:, 0].min() - r.max(), ref[:, 0].max() + r.max())
+    ax.set_ylim(info["base_z"], max(ref[:, 1].max(), xs[:, 1].max()) + 3 * r.max())
+    ax.set_aspect("equal")
+    ax.set_title(title, fontsize=8)
+    return coll
+
+
+def _plan_view(ax, ref, r, slide, xs, speed, vmax, title):
+    """A 3-D model in plan: the ground's top layer grey, slide elements by speed."""
+    ground = np.setdiff1d(np.arange(len(r)), slide)
+    ax.scatter(ref[ground, 0], ref[ground, 1], s=1, c="0.85", lw=0)
+    sc = ax.scatter(xs[:, 0], xs[:, 1], s=3, c=speed, cmap="plasma", vmin=0, vmax=vmax, lw=0)
+    ax.set_aspect("equal")
+    ax.set_title(title, fontsize=8)
+    return sc
+
+
+def _view(ax, dim, ref, r, slide, xs, speed, info, vmax, title):
+    if dim == 2:
+        return _section_view(ax, ref, r, slide, xs, speed, info, vmax, title)
+    return _plan_view(ax, ref, r, slide, xs, speed, vmax, title)
+
+
+def deposit_map(path, dim, ref, r, slide, x0, x, moved, info, res):
+    """Before and after: 2-D, the section with the source (light) and the deposit (red), the
+    travel-angle line from the crown top to the deposit tip and the runout; 3-D, the plan view
+    of the source and the deposit coloured by the elevation change."""
+    plt = _plt()
+    if plt is None:
+        return None
+    if dim == 2:
+        fig, ax = plt.subplots(figsize=(10, 4.2))
+        ground = np.setdiff1d(np.arange(len(r)), slide)
+        _discs(ax, ref[ground], r[ground], "0.82", edgecolors="none")
+        _discs(ax, x0, r[slide], "#9ecae1", edgecolors="none", alpha=0.6)
+        cols = np.where(moved[:, None], np.array([[0.84, 0.15, 0.16, 1.0]]),
+                        np.array([[0.4, 0.4, 0.4, 1.0]]))
+        _discs(ax, x, r[slide], cols, edgecolors="none")
+        prof = info.get("profile")
+        if prof:
+            ax.plot(prof["s"], prof["top"], "k-", lw=0.8, label="ground before")
+            ax.plot(prof["s"], prof["slip"], "k--", lw=0.7, label="sliding surface")
+        sgn = res["direction"][0]
+        if res.get("travel_angle_deg") is not None:
+            xc, xt = sgn * res["crown_h"], sgn * res["front_h"]
+            ax.plot([xc, xt], [res["crown_z"], res["tip_z"]], "g-", lw=1.2,
+                    label=f"travel angle {res['travel_angle_deg']:.1f} deg")
+            xtoe = sgn * res["source_toe_h"]
+            y = info["base_z"] + 2 * r.max()
+            ax.annotate("", xy=(xt, y), xytext=(xtoe, y),
+                        arrowprops=dict(arrowstyle="<->", color="C3"))
+            ax.text(0.5 * (xt + xtoe), y + r.max(), f"runout {res['runout_m']:.0f} m",
+                    color="C3", ha="center", fontsize=8)
+        ax.plot([], [], "o", color="#9ecae1", label="source (before)")
+        ax.plot([], [], "o", color="C3", label=f"deposit ({res['deposit_volume_m3']:.0f} m^3/m)")
+        ax.set_xlim(ref[:, 0].min(), ref[:, 0].max())
+        ax.set_ylim(info["base_z"], max(ref[:, 1].max(), x[:, 1].max()) + 3 * r.max())
+        ax.set_aspect("equal")
+        ax.set_xlabel("distance along the section [m]")
+        ax.set_ylabel("elevation [m]")
+        ax.legend(fontsize=7, loc="upper right")
+    else:
+        fig, ax = plt.subplots(figsize=(8, 5))
+        ground = np.setdiff1d(np.arange(len(r)), slide)
+        ax.scatter(ref[ground, 0], ref[ground, 1], s=1, c="0.85", lw=0)
+        ax.scatter(x0[:, 0], x0[:, 1], s=3, c="#9ecae1", lw=0, label="source")
+        sc = ax.scatter(x[moved, 0], x[moved, 1], s=4, c=x[moved, 2] - x0[moved, 2],
+                        cmap="RdBu", lw=0, label="deposit")
+        fig.colorbar(sc, ax=ax, label="elevation change [m]")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.legend(fontsize=7)
+    ta = res.get("travel_angle_deg")
+    ax.set_title(f"runout {res['runout_m']:.1f} m, travel angle "
+                 f"{'n/a' if ta is None else f'{ta:.1f}'} deg, max mean speed "
+                 f"{res['max_velocity']:.2g} m/s, H_c/L_c = {res['com_ratio']:.3g}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
+
+
+def _load(frames, n):
+    pick = np.unique(np.linspace(0, len(frames) - 1, n).round().astype(int))
+    return [np.load(frames[k]) for k in pick]
+
+
+def _speed(z):
+    return np.linalg.norm(z["v"].astype(float), axis=1)
+
+
+def snapshots(path, dim, ref, r, slide, frames, n, info):
+    """``n`` panels of the slide body spread over the runout (colour: element speed)."""
+    plt = _plt()
+    if plt is None or not frames:
+        return None
+    data = _load(frames, n)
+    vmax = max(float(np.percentile(_speed(z), 99)) for z in data) or 1.0
+    cols = 1 if dim == 2 else min(3, len(data))
+    rows = int(math.ceil(len(data) / cols))
+    size = (9, 1.9 * rows + 0.6) if dim == 2 else (3.4 * cols + 1, 3 * rows)
+    fig, axes = plt.subplots(rows, cols, figsize=size, squeeze=False, layout="constrained")
+    coll = None
+    for ax, z in zip(axes.ravel(), data):
+        coll = _view(ax, dim, ref, r, slide, z["x"].astype(float), _speed(z), info, vmax,
+                     f"t = {float(z['time']):.1f} s")
+    for ax in axes.ravel()[len(data):]:
+        ax.axis("off")
+    fig.colorbar(coll, ax=axes.ravel().tolist(), label="speed [m/s]", shrink=0.8)
+    fig.savefig(path, dpi=70)
+    plt.close(fig)
+    return path
+
+
+def animation(path, dim, ref, r, slide, frames, n, info):
+    """GIF of the runout (imageio if installed, else Pillow)."""
+    plt = _plt()
+    if plt is None or not frames:
+        return None
+    data = _load(frames, n)
+    vmax = max(float(np.percentile(_speed(z), 99)) for z in data) or 1.0
+    fig, ax = plt.subplots(figsize=(8, 3.2) if dim == 2 else (5, 4))
+    images = []
+    for z in data:
+        ax.clear()
+        _view(ax, dim, ref, r, slide, z["x"].astype(float), _speed(z), info, vmax,
+              f"t = {float(z['time']):.1f} s")
+        fig.canvas.draw()
+        images.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
+    plt.close(fig)
+    try:
+        import imageio.v2 as imageio
+
+        imageio.mimsave(path, images, duration=0.12, loop=0)
+    except ImportError:
+        from PIL import Image
+
+        pics = [Image.fromarray(im) for im in images]
+        pics[0].save(path, save_all=True, append_images=pics[1:], duration=120, loop=0)
+    return path
