@@ -435,6 +435,13 @@ class CutterKinematics(CoupledField):
         """The cutter elements ``idx`` at positions ``x`` (their pose at ``t_start``)."""
         self.idx = np.asarray(idx, np.int64)
         self.rel0 = np.asarray(x, float)[self.idx] - self.centre0
+        self._index()
+
+    def _index(self):
+        # the cutter elements are appended last by the model: a slice is a view, no gather
+        i = self.idx
+        contiguous = i.size and np.array_equal(i, np.arange(i[0], i[0] + i.size))
+        self.sel = slice(int(i[0]), int(i[0]) + i.size) if contiguous else i
 
     def attach(self, sim):
         self.fsum = np.zeros(sim.state.dim)
@@ -449,12 +456,11 @@ class CutterKinematics(CoupledField):
         c = self.centre0.copy()
         c[0] += self.speed * tau
         ang = -self.speed * tau / self.radius  # clockwise in the x-vertical plane: rolls to +x
-        ca, sa = math.cos(ang), math.sin(ang)
-        rel = self.rel0.copy()
-        h, v = self.rel0[:, 0], self.rel0[:, -1]
-        rel[:, 0] = ca * h - sa * v
-        rel[:, -1] = sa * h + ca * v
-        return c + rel
+        rot = np.eye(len(c))
+        rot[0, 0] = rot[-1, -1] = math.cos(ang)
+        rot[-1, 0] = math.sin(ang)
+        rot[0, -1] = -rot[-1, 0]
+        return self.rel0 @ rot.T + c
 
     def centre(self, t):
         tau = min(max(t - self.t_start, 0.0), self.duration)
@@ -465,11 +471,11 @@ class CutterKinematics(CoupledField):
     def apply(self, sim):
         """Set the velocities that carry the disc to its pose one step later."""
         st = sim.state
-        st.v[self.idx] = (self.pose(st.time + st.dt) - st.x[self.idx]) / st.dt
+        st.v[self.sel] = (self.pose(st.time + st.dt) - st.x[self.sel]) / st.dt
 
     def advance(self, sim, span):
         st = sim.state
-        self.fsum += (st.m[self.idx, None] * st.a[self.idx]).sum(axis=0)
+        self.fsum += st.m[self.sel] @ st.a[self.sel]
         self.nsum += 1
         self.apply(sim)
         self.substeps += 1
@@ -500,6 +506,7 @@ class CutterKinematics(CoupledField):
         self.rel0 = np.asarray(arrays["rel0"], float)
         self.fsum = np.asarray(arrays["fsum"], float).copy()
         self.nsum = int(np.asarray(arrays["nsum"])[0])
+        self._index()
 
     def summary(self):
         return {"speed": self.speed, "angular_velocity": self.speed / self.radius,
