@@ -43,8 +43,8 @@ section 7).
   (during the step; also by material: ``broken_bonds_soft``, ``_strong``, ``_interface``),
   ``specific_energy`` [MJ/m^3] = cutting work / removed volume, cutting work = the work of the
   cutter on the rock (its elements' booked external work), removed volume = the bulk volume
-  (element volume / packing fraction) of the rock elements no longer joined to the base by a
-  chain of intact bonds (chips and crushed grains); ``rolling_coefficient`` = F_r / F_n;
+  (element volume / packing fraction) of the rock elements neither joined to the base by a
+  chain of intact bonds nor part of the largest bonded cluster (chips and crushed grains); ``rolling_coefficient`` = F_r / F_n;
   ``csm_normal_force``, ``csm_rolling_force`` (CSM model, below) and ``normal_force_over_csm``;
   the layered fit ``normal_force_soft`` / ``normal_force_strong`` (least squares of the sample
   normal forces on the soft fraction of the contact chord); energy and heat (``cutting_work``,
@@ -711,8 +711,8 @@ class DiscCutter(StepBase):
             "cracks_shear": int((log["type"] == 2).sum()),
             "cutting_work": work, "removed_elements": int(det.size),
             "removed_volume": removed,
-            "removed_volume_note": "bulk volume of the rock elements no longer joined to the "
-                                   "base by intact bonds (element volume / packing fraction"
+            "removed_volume_note": "bulk volume of the rock elements off the bonded block "
+                                   "(element volume / packing fraction"
                                    + (", slice thickness d_mean" if dim == 2 else "") + ")",
             "specific_energy": se,
             "heat_total": e["heat_total"], "heat_viscous": e["heat_viscous"],
