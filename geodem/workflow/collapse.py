@@ -13,9 +13,10 @@ model and the ``column_collapse`` step.
   ``H0 = column_size`` and ``L0 = column_size / a`` below.
 
   Column build (:mod:`geodem.build.packing`): random placement of enough elements to fill the
-  column at a packing fraction of 0.86, gravity deposition of the frictionless packing material
-  in the column's box (:func:`~geodem.build.packing.deposition_state`,
-  :func:`~geodem.build.packing.deposit`), elements whose top lies above ``H0 + d/4`` removed;
+  column at a packing fraction of 0.86, gravity deposition of the packing material in the
+  column's box (:func:`~geodem.build.packing.deposition_state`,
+  :func:`~geodem.build.packing.deposit`; frictionless by default: a dense packing),
+  elements whose top lies above ``H0 + d/4`` removed;
   then the real material (``kn, ks`` proportional to the element diameter, friction ``mu``,
   mass ``rho pi r^2 2r``: the 2-D thickness convention), real gravity ``g`` and the friction of
   floor and walls, and the assembled model balanced (standard damping) with the gates in
@@ -161,10 +162,17 @@ class GranularColumn(ModelBase):
                                                     "the smaller of the two)")
     wall_friction: float = F(0.0, ge=0, le=5,
                              description="Friction coefficient of the back wall and the gate")
-    floor_element: float = F(1.0, ge=0.25, le=2,
-                             description="Floor element diameter / d_mean: 1 gives a rough floor "
-                                         "(bumps of about 0.24 d between elements), 0.25 an "
-                                         "almost flat, frictional one (bumps 0.015 d)")
+    packing_friction: Optional[float] = F(None, ge=0, le=5,
+                                          description="Friction of the elements while they are "
+                                                      "deposited into the column (default 0: a "
+                                                      "dense packing; with friction the elements "
+                                                      "land in loose vertical stacks that "
+                                                      "translation-only elements keep)")
+    floor_element: float = F(0.5, ge=0.25, le=2,
+                             description="Floor element diameter / d_mean: 0.5 (default) a "
+                                         "frictional floor with bumps of 0.06 d between its "
+                                         "elements, 1 a rough one (bumps 0.24 d), 0.25 an almost "
+                                         "flat one (0.015 d)")
     channel_length: float = F(2.5, ge=1.2, le=10,
                               description="Floor length beyond the gate / the runout of the "
                                           "reference law (the end wall stands there)")
@@ -227,7 +235,8 @@ class GranularColumn(ModelBase):
         for k, a in enumerate(self.aspect_ratios):
             L0, H0 = column_dims(a, self.column_size)
             try:
-                col = _packed_column(L0, H0, d, self.distri_rate, p, seed + 7919 * k)
+                col = _packed_column(L0, H0, d, self.distri_rate, p, seed + 7919 * k,
+                                     self.packing_friction or 0.0)
             except ValueError as exc:
                 raise BuildError(("column_size",), str(exc)) from None
             L_meas = float((col.x[:, 0] + col.r).max())
@@ -273,7 +282,7 @@ class GranularColumn(ModelBase):
         return BuiltModel(st, st.x.copy(), n_across, info)
 
 
-def _packed_column(L0, H0, d, distri_rate, p, seed):
+def _packed_column(L0, H0, d, distri_rate, p, seed, mu_pack):
     """Elements packed in ``[0, L0] x [0, H0]`` by gravity deposition, with the real
     material's parameters (a state without walls, no bonds)."""
     from geodem.build import packing
@@ -287,6 +296,7 @@ def _packed_column(L0, H0, d, distri_rate, p, seed):
     x, r = packing.random_placement((lo, hi), porosity=1.0 - PACKING_FRACTION, d_mean=d,
                                     distri_rate=distri_rate, seed=seed)
     st = packing.deposition_state(x, r, (lo, hi), rho=p["rho"], d_wall=0.5 * d, platen=False)
+    st.mu[st.group_mask("sample")] = mu_pack  # poured with friction: a looser packing
     packing.deposit(st)
     keep = st.group_mask("sample") & (st.x[:, 1] + st.r <= H0 + 0.25 * d)
     col = subset_state(st, keep, rebuild=False)
@@ -374,13 +384,13 @@ class ColumnCollapse(StepBase):
                                       "still_tolerance over this time, in tau")
     still_tolerance: float = F(0.5, gt=0, le=5,
                                description="Front movement that counts as still, in d_mean")
-    link_gap: float = F(0.25, ge=0, le=5,
+    link_gap: float = F(0.5, ge=0, le=5,
                         description="Elements closer than this (surface gap, in d_mean) belong "
                                     "to the same deposit cluster")
     rest_ke: float = F(1e-6, gt=0, le=0.1,
                        description="At rest: kinetic energy below rest_ke x the potential energy "
                                    "released")
-    settle_balances: Int = F(10, ge=0, le=1000,
+    settle_balances: Int = F(40, ge=0, le=1000,
                              description="Most standard balances (50 N steps, N = elements "
                                          "across the tallest column) of the settling phase")
     tolerance: float = F(0.15, gt=0, le=10,

@@ -1,0 +1,139 @@
+"""Granular column collapse (geodem/workflow/collapse.py, workflows/column_collapse.yaml).
+
+Default suite: the reference law and the front detection on hand-made input, bad input (exit
+2 naming the field), and one small column (a = 2, 6 elements across, ~300 elements with the
+walls) run end to end: summary keys, pictures, GIF, VTK, the deposit at rest, and the runout
+against Lube et al. (2005) within RUNOUT_TOLERANCE.
+
+Tolerance of the small run: 0.5. The elements translate only (MatDEM's law: no rotation, so
+no rolling), which acts like a strong rolling resistance; with the glass-bead friction 0.5 on
+the rough floor the deposits run out 30-40 % short of the law at a = 2 and 4 (measured at the
+default size, docs/column_collapse.md). The test guards the measurement and gross failures (a
+column that does not fall, a deposit scattered over the channel: errors of 0.6 to > 1) rather
+than the validation target 0.15, which the full run below reports.
+
+Slow (``-m slow``): the shipped workflow at its default size (four aspect ratios, about 1,700
+elements, a few minutes on one core)::
+
+    NUMBA_NUM_THREADS=1 PYTHONPATH=. python -m pytest tests/integration/test_column_collapse.py -m slow -q
+"""
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from geodem.cli import app
+from geodem.workflow import run_workflow
+from geodem.workflow.collapse import column_dims, deposit_front, lube_2005
+from geodem.workflow.schema import load_builtins
+
+load_builtins()
+
+ROOT = Path(__file__).resolve().parents[2]
+WF = ROOT / "workflows" / "column_collapse.yaml"
+RUNOUT_TOLERANCE = 0.5
+KEYS = ("aspect_ratios", "runouts", "runout_rel_error", "runout_reference", "runout_rel_errors",
+        "runout_lengths", "final_heights", "at_rest")
+
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
+
+
+# ------------------------------------------------------------------ by hand
+def test_lube_2005_law():
+    assert lube_2005(1.0) == pytest.approx(1.2)
+    assert lube_2005(2.3) == pytest.approx(2.76)
+    assert lube_2005(8.0) == pytest.approx(1.9 * 4.0)
+    np.testing.assert_allclose(lube_2005([0.5, 27.0]), [0.6, 1.9 * 9.0])
+
+
+def test_column_dims_keep_the_narrower_side():
+    assert column_dims(4.0, 0.03) == pytest.approx((0.03, 0.12))
+    assert column_dims(0.5, 0.03) == pytest.approx((0.06, 0.03))
+
+
+def test_deposit_front_excludes_detached_elements():
+    r = np.full(7, 0.5)
+    x = np.c_[[0.5, 1.5, 2.55, 3.6, 4.6, 9.0, 12.0], np.full(7, 0.5)]  # two ejected at the end
+    front, members = deposit_front(x, r, link=0.25)
+    assert front == pytest.approx(5.1)
+    assert members.tolist() == [0, 1, 2, 3, 4]
+    # a gap of 0.3 breaks the chain for link 0.25, not for link 0.5
+    x2 = x.copy()
+    x2[3:5, 0] += 0.3
+    assert deposit_front(x2, r, link=0.25)[0] == pytest.approx(3.05)
+    assert deposit_front(x2, r, link=0.5)[0] == pytest.approx(5.4)
+
+
+# ------------------------------------------------------------------ bad input
+@pytest.mark.parametrize("key,value,field", [
+    ("model.aspect_ratios", "[0.1]", "model.aspect_ratios.0"),
+    ("model.scale", "100", "model.scale"),
+    ("steps.collapse.gif_column", "7", "steps[0].gif_column"),
+])
+def test_bad_input_exits_2_naming_the_field(key, value, field):
+    res = CliRunner().invoke(app, ["validate", str(WF), "--set", f"{key}={value}"])
+    assert res.exit_code == 2, res.output
+    text = " ".join(res.output.split())
+    assert field in text.replace("[0]", ".0") or field in text, text
+    assert "allowed" in text
+
+
+# ------------------------------------------------------------------ a small run
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("collapse")
+    code, summary = run_workflow(
+        WF, out / "run", sets=["model.aspect_ratios=[2.0]", "model.scale=0.6",
+                               "steps.collapse.gif_frames=8", "outputs.observables.every=2000"],
+        echo=False)
+    return code, summary, out / "run"
+
+
+def test_small_column_summary_and_files(small_run):
+    code, s, run = small_run
+    assert code == 0, s
+    for key in KEYS:
+        assert key in s, key
+    assert s["at_rest"] is True
+    assert len(s["aspect_ratios"]) == 1 and abs(s["aspect_ratios"][0] - 2.0) < 0.3
+    for name in ("collapse_a2.png", "collapse_a2.vtp", "collapse_initial.vtp",
+                 "collapse_runout.png", "collapse_history.png", "collapse_history.csv"):
+        assert (run / name).stat().st_size > 0, name
+    gif = run / "collapse.gif"
+    assert gif.exists() and gif.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
+    from geodem.io.vtk import read_vtp
+
+    v = read_vtp(run / "collapse_a2.vtp")
+    assert v["Points"].shape[0] == len(v["radius"]) > 50
+    assert np.all(v["column"] == 0)
+
+
+def test_small_column_runout_against_lube_2005(small_run):
+    code, s, run = small_run
+    a = s["aspect_ratios"][0]
+    ref = lube_2005(a)
+    assert s["runout_reference"][0] == pytest.approx(ref)
+    nr = s["runouts"][0]
+    # the deposit spread well beyond the column, no higher than it stood
+    assert nr > 0.3 * a
+    info = json.loads((run / "summary.json").read_text())
+    cols = info["results"]["collapse"]["columns"]
+    assert cols[0]["final_height"] <= cols[0]["H0"] + 1e-9
+    assert s["runout_rel_error"] == pytest.approx(abs(nr - ref) / ref)
+    assert s["runout_rel_error"] < RUNOUT_TOLERANCE, (nr, ref)
+    assert math.isfinite(s["runout_lengths"][0])
+
+
+# ------------------------------------------------------------------ the validation
+@pytest.mark.slow
+def test_default_workflow_four_aspect_ratios(tmp_path):
+    code, s = run_workflow(WF, tmp_path / "run", echo=False)
+    assert code == 0
+    assert len(s["runouts"]) == 4 and s["at_rest"] is True
+    # the runout grows with the aspect ratio
+    assert np.all(np.diff(s["runouts"]) > 0)
+    # measured at the default size (docs/column_collapse.md); target 0.15 not met
+    assert s["runout_rel_error"] < 1.0
