@@ -265,6 +265,77 @@ def box_specimen(size, d_mean, distri_rate, material: SpecimenMaterial, dim, see
     return sp, rep
 
 
+def lattice_box_specimen(size, d_mean, material: SpecimenMaterial, dim):
+    """A bonded close-packed box specimen: the largest FCC (3-D, close-packed layers normal to
+    the loading axis z) or triangular (2-D) block of element diameter ``d_mean`` that fits in
+    ``size``, every touching pair bonded (12 bonds per interior element in 3-D, 6 in 2-D), in
+    Morton order. It is the lattice on which :func:`geodem.materials.macro_to_micro` is
+    derived (PHYSICS.md section 2), so rock properties give E and nu of the lattice directly;
+    it is anisotropic (cubic symmetry) and its faces across the rows are stepped by d/2 (only
+    every other row touches a lateral wall). Returns ``(state, report)``."""
+    from geodem.build.lattice import bonded_state, fcc_lattice, triangular_lattice
+    from geodem.core import groups, neighbors
+    from geodem.materials import at_size, macro_to_micro
+
+    size = np.asarray(size, float)
+    spacing = [d_mean, d_mean * math.sqrt(3) / 2] + ([d_mean * math.sqrt(2 / 3)] if dim == 3
+                                                     else [])
+    # x rows span (nx - 1) d + d/2 (odd rows shifted) plus one diameter of element
+    counts = [int((size[0] - 1.5 * d_mean) / d_mean) + 1] +         [int((size[a] - d_mean) / spacing[a]) + 1 for a in range(1, dim)]
+    if min(counts) < 3:
+        raise ValueError(f"size {size.tolist()} m holds only {counts} lattice elements of "
+                         f"d_mean {d_mean:g} m along the axes; allowed: at least 3 along each")
+    x = fcc_lattice(*counts, d_mean) if dim == 3 else triangular_lattice(*counts, d_mean)
+    x = x + 0.5 * d_mean
+    mass = None
+    if material.element is None:
+        m = material.macro
+        mic = macro_to_micro(m["E"], m["nu"], m["Tu"], m["Cu"], m["mu_i"], m["rho"], d_mean)
+        params, mass = mic.element, mic.mass
+    else:
+        params = at_size(material.element, d_mean)
+    st = bonded_state(x, 0.5 * d_mean, density=material.rho, kn=params["kn"], ks=params["ks"],
+                      xb=params["xb"], fs0=params["fs0"], mu=params["mu"], gap=1e-6 * d_mean)
+    if mass is not None:
+        st.m[:] = mass
+    st.groups = {"all": 0}
+    st.group[:] = 0
+    groups.add_group(st, "specimen", np.arange(st.n))
+    neighbors.spatial_sort(st)
+    bonds = int((st.cstate == 1).sum() // 2)
+    return st, {"n_elements": st.n, "bonds": bonds, "coordination": 2.0 * bonds / st.n,
+                "packing": {"lattice": "fcc" if dim == 3 else "triangular",
+                            "counts": counts}}
+
+
+def lattice_walls(st, layout, mu: float):
+    """A new state with the walls of a :func:`lattice_box_specimen`: one wall element (the
+    specimen's diameter and ``kn``) head-on against each face element, one diameter out along
+    the wall's axis, where no specimen element is nearer than 0.99 diameters. Every face
+    element then touches its wall through one contact as stiff as a bond (a flat wall of
+    smaller elements lets the lattice's spheres sink into the gaps between wall elements: a
+    seating strain of about 0.5 % and a wall contact several times softer than the rock).
+    The walls follow the lattice's stepped faces; ``layout`` is :func:`wall_layout`."""
+    from scipy.spatial import cKDTree
+
+    from geodem.build.walls import append_elements
+    from geodem.core.neighbors import build_rows
+
+    d = float(2.0 * st.r.mean())
+    tree = cKDTree(st.x)
+    out = st
+    for name, ax, sign in layout:
+        pts = st.x.copy()
+        pts[:, ax] += sign * d
+        free = np.array([len(h) == 0 for h in tree.query_ball_point(pts, 0.99 * d)])
+        out = append_elements(out, pts[free], 0.5 * d, float(st.m.mean()),
+                              kn=float(st.kn.mean()), ks=float(st.ks.mean()), mu=mu, group=name)
+    if out.skin <= 0:
+        out.skin = 0.1 * d
+    build_rows(out)
+    return out
+
+
 # ============================================================================ model
 @register_model("triaxial_box")
 class TriaxialBox(ModelBase):
@@ -286,6 +357,10 @@ class TriaxialBox(ModelBase):
     distri_rate: float = F(0.2, ge=0, lt=1, description="Size spread of the packing "
                                                         "(MatDEM distriRate)")
     seed: Optional[int] = F(None, description="Packing seed (default: metadata.seed)")
+    packing: Literal["random", "lattice"] = F(
+        "random", description="random: packed in the box (2-D only); lattice: the largest "
+                              "close-packed block (FCC in 3-D) that fits the box, all touching "
+                              "pairs bonded")
     material: Name = F(..., description="Material name (rock properties, per-size or direct "
                                         "element parameters, or a library material)")
     wall_element: Optional[float] = F(None, gt=0, le=2,
@@ -313,7 +388,8 @@ class TriaxialBox(ModelBase):
     def n_elements(self):
         vol = float(np.prod(self.size))
         el = math.pi / 4 * self.d_mean ** 2 if self.dim == 2 else math.pi / 6 * self.d_mean ** 3
-        spec = (0.84 if self.dim == 2 else 0.63) * vol / el
+        phi = {"random": (0.84, 0.63), "lattice": (0.907, 0.74)}[self.packing]
+        spec = (phi[0] if self.dim == 2 else phi[1]) * vol / el
         dw = self.d_wall()
         per = [s / (0.85 * dw) + 1 for s in self.size]
         wall = 0.0
@@ -335,28 +411,37 @@ class TriaxialBox(ModelBase):
 
     def check(self, cfg):
         out = box_size_problems(self.size, self.dim, self.d_mean)
-        if self.dim == 3:
-            out.append((("dim",), "triaxial_box is 2-D only for now: in a first 3-D run the "
-                                  "walls never came into contact with the packed specimen "
-                                  "(zero wall stresses; not diagnosed yet); use dim: 2"))
+        if self.dim == 3 and self.packing == "random":
+            out.append((("packing",), "a random 3-D box specimen is not available: the 3-D "
+                                      "packings reach a coordination of only about 4 bonds per "
+                                      "element (floppy, unbalanced); allowed in 3-D: packing: "
+                                      "lattice (or dim: 2)"))
         return out + material_problems(cfg, self.material, self.dim, self.d_mean)
 
     def build(self, cfg):
         from geodem.build.walls import add_walls
+        from geodem.core import groups
 
         sm = specimen_material(cfg, self.material, self.dim, self.d_mean)
         seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
         dw = self.d_wall()
         try:
-            st, rep = box_specimen(self.size, self.d_mean, self.distri_rate, sm, self.dim, seed,
-                                   dw)
+            if self.packing == "lattice":
+                st, rep = lattice_box_specimen(self.size, self.d_mean, sm, self.dim)
+            else:
+                st, rep = box_specimen(self.size, self.d_mean, self.distri_rate, sm, self.dim,
+                                       seed, dw)
         except ValueError as exc:
             raise BuildError(("size",), str(exc)) from None
         kn = self.wall_stiffness * float((st.kn / (2.0 * st.r)).max()) * dw
         names = [g for g, _, _ in wall_layout(self.dim)]
-        st = add_walls(st, _sides(self.dim), names=names, d_wall=dw, gap=0.0,
-                       margin=self.wall_margin * self.d_mean / dw, kn=kn,
-                       mu=self.wall_friction)
+        if self.packing == "lattice":
+            st = lattice_walls(st, wall_layout(self.dim), self.wall_friction)
+            dw, kn = self.d_mean, float(st.kn[groups.members(st, "specimen")].mean())
+        else:
+            st = add_walls(st, _sides(self.dim), names=names, d_wall=dw, gap=0.0,
+                           margin=self.wall_margin * self.d_mean / dw, kn=kn,
+                           mu=self.wall_friction)
         gap, a, b = wall_clearance(st, names)
         if gap < 0.05 * self.d_mean:
             raise BuildError(("wall_margin",), f"walls {a!r} and {b!r} come within "
