@@ -743,8 +743,11 @@ class DiscCutter(StepBase):
                 "normal_force_over_csm", "normal_force_soft", "normal_force_strong",
                 "broken_fraction_soft", "broken_fraction_strong")
         ctx.summary.update({k: res[k] for k in keys})
-        ctx.log(f"disc cutter: F_n = {mean_n:.4g} N (peak {res['peak_normal_force']:.4g} N), "
-                f"F_r = {mean_r:.4g} N, F_r/F_n = {res['rolling_coefficient']:.3g} "
+        def g(v):
+            return "n/a" if v is None else f"{v:.4g}"
+
+        ctx.log(f"disc cutter: F_n = {mean_n:.4g} N (peak {g(res['peak_normal_force'])} N), "
+                f"F_r = {mean_r:.4g} N, F_r/F_n = {g(res['rolling_coefficient'])} "
                 f"(tan(phi/2) = {res['tan_half_contact_angle']:.3g}); {len(log)} bonds broken "
                 f"({ns} soft, {nh} strong, {ni} across); specific energy "
                 f"{se if se is None else f'{se:.4g}'} MJ/m^3; CSM F_n = "
