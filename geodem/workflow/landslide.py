@@ -22,8 +22,8 @@
   friction ``slide_friction`` and their bond strength (``xb``, ``fs0``) times
   ``strength_factor`` (0: the slide's own bonds are cut too: a cohesionless mass); damping is set
   to ``damping_ratio`` of critical (default 0: only friction and breakage dissipate). The slide
-  then moves under gravity until it is at rest (mean speed of the slide's elements below
-  ``rest_speed`` after at least ``min_time``) or ``max_time``.
+  then moves under gravity until it is at rest (mean speed of the slide's elements back below
+  ``rest_speed`` after having exceeded it, and at least ``min_time``) or ``max_time``.
 
 Results (summary.json):
 
@@ -482,7 +482,9 @@ class LandslideStep(StepBase):
             row = self._sample(ctx, slide, x0, t0, d, path)
             rows.append(row)
             k += 1
-            rest = row[1] >= self.min_time and row[2] < self.rest_speed
+            # at rest: slow again after having moved (faster than rest_speed), past min_time
+            moving = max(rw[2] for rw in rows) >= self.rest_speed
+            rest = row[1] >= self.min_time and moving and row[2] < self.rest_speed
             if k % frame_every == 0 or rest or done == total:
                 self._frame(fdir, ctx, slide, t0, k)
             if rest:
