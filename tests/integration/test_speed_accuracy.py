@@ -36,7 +36,8 @@ def test_quick_cli_run_table_and_trends(tmp_path):
         rows = list(csv.DictReader(fh))
     assert list(rows[0]) == COLUMNS
     assert {r["precision"] for r in rows} == {"float64"}
-    assert all(r["status"] == "ok" and float(r["wall_s"]) > 0 for r in rows)
+    assert all(r["status"] == "ok" and float(r["wall_s"]) > 0 for r in rows), \
+        [r["status"] for r in rows]
     tb = {float(r["dt_fraction"]): float(r["error"]) for r in rows if r["case"] == "two_balls"}
     assert set(tb) == {0.005, 0.02}
     assert 12.0 < tb[0.02] / tb[0.005] < 20.0  # second order: 16
