@@ -39,7 +39,8 @@ from geodem.core import groups, neighbors, timestep
 from geodem.core.state import BONDED, State
 from geodem.materials import Micro, at_size, macro_to_micro
 
-__all__ = ["cement", "make_specimen", "DEFAULT_MATERIAL", "coordination", "specimen_shape"]
+__all__ = ["cement", "make_specimen", "isotropic_specimen", "specimen_params", "DEFAULT_MATERIAL",
+           "coordination", "specimen_shape"]
 
 DEFAULT_MATERIAL = {"E": 10e9, "nu": 0.15, "Tu": 5e6, "Cu": 50e6, "mu_i": 0.8, "rho": 2500.0}
 _ELEMENT_KEYS = ("kn", "ks", "xb", "fs0", "mu")
@@ -173,6 +174,43 @@ def specimen_shape(shape: str, size, dim: int, origin=0.0):
     raise ValueError(f"shape must be 'box', 'cylinder' or 'disc', got {shape!r}")
 
 
+def specimen_params(mat, element, d_mean):
+    """Element parameters at ``d_mean``: ``macro_to_micro`` of the rock properties ``mat``, or
+    the size-free ``element`` parameters at that size."""
+    if element is None:
+        return macro_to_micro(mat["E"], mat["nu"], mat["Tu"], mat["Cu"], mat["mu_i"],
+                              mat["rho"], d_mean).element
+    return at_size(element, d_mean)
+
+
+def isotropic_specimen(shp, d_mean, distri_rate, params, rho, *, seed=0, backend=None,
+                       tol=1e-3, **packing_kw):
+    """A 3-D bonded random specimen of shape ``shp`` (:func:`specimen_shape`) from
+    :func:`geodem.build.isotropic.isotropic_packing`: a box is packed in itself (flat faces,
+    the box of the packing), other shapes in their bounding box (and cut: centres inside).
+    The packing's bonded pairs touch, stress-free; :func:`cement` bonds them (gap 0) with the
+    element parameters ``params`` (at ``d_mean``) and balances; Morton-sorted. Every element is
+    in group ``"specimen"``. Returns ``(state, report)``: the :func:`cement` keys plus
+    ``volume``, ``shape_packing_fraction`` and ``packing`` (the packing's report)."""
+    from geodem.build.isotropic import isotropic_packing
+    from geodem.core.state import new_state
+
+    lo, hi = shp.bounds
+    x, r, prep = isotropic_packing(hi - lo, d_mean, distri_rate, seed=seed, **packing_kw)
+    x = x + lo
+    if not isinstance(shp, Box):
+        keep = shp.mask(x)
+        x, r = x[keep], r[keep]
+    st = new_state(x, r, 1.0, width=16)
+    groups.add_group(st, "specimen", np.arange(st.n))
+    rep = cement(st, 0.0, params, d_ref=d_mean, rho=rho, backend=backend, tol=tol)
+    neighbors.spatial_sort(st)
+    vol_el = float(packing.element_volume(st.r, st.dim).sum())
+    rep.update({"volume": shp.volume, "shape_packing_fraction": vol_el / shp.volume,
+                "packing": prep})
+    return st, rep
+
+
 def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material=None, dim=3,
                   seed=0, gap=None, backend=None, tol=1e-3, element=None):
     """Pack, cut and cement a specimen. ``material``: rock properties (``E, nu, Tu, Cu, mu_i,
@@ -185,6 +223,10 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
     mat = dict(DEFAULT_MATERIAL if material is None else material)
     shp = specimen_shape(shape, size if size is not None else [10 * d_mean] * dim, dim)
+    if dim == 3:
+        return isotropic_specimen(shp, d_mean, distri_rate,
+                                  specimen_params(mat, element, d_mean), mat["rho"], seed=seed,
+                                  backend=backend, tol=tol)
     blo, bhi = shp.bounds
     ext = bhi - blo
     margin = 1.5 * d_mean
@@ -196,12 +238,7 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
     st = packing.deposition_state(x, r, (box_lo, box_hi), rho=mat["rho"])
     dep = packing.deposit(st, backend=backend)
     com = packing.compact(st, backend=backend)
-    if element is None:
-        micro = macro_to_micro(mat["E"], mat["nu"], mat["Tu"], mat["Cu"], mat["mu_i"],
-                               mat["rho"], d_mean)
-        params = micro.element
-    else:
-        params = at_size(element, d_mean)
+    params = specimen_params(mat, element, d_mean)
     s = groups.members(st, "sample")
     factor = max(1.0, params["kn"] / float(st.kn[s].mean()))
     stf = packing.stiffen(st, factor, backend=backend)

@@ -227,6 +227,14 @@ def box_specimen(size, d_mean, distri_rate, material: SpecimenMaterial, dim, see
     from geodem.materials import at_size, macro_to_micro
 
     size = np.asarray(size, float)
+    if dim == 3:
+        # 3-D: isotropic compression by radius expansion inside the box itself (flat faces)
+        from geodem.build.shapes import Box
+        from geodem.build.specimen import isotropic_specimen, specimen_params
+
+        params = specimen_params(material.material, material.element, d_mean)
+        return isotropic_specimen(Box((0.0,) * 3, tuple(size)), d_mean, distri_rate, params,
+                                  material.rho, seed=seed, backend=backend)
     lo = np.zeros(dim)
     phi = 0.84 if dim == 2 else 0.63
     x, r = packing.random_placement((lo, size), porosity=1.0 - phi, d_mean=d_mean,
