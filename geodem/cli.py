@@ -593,8 +593,10 @@ def _float_list(value: Optional[str], name: str, integer=False):
     "(wall time, E and UCS errors against the material's targets per point) and "
     "speed_accuracy.png into -o DIR, and names the fastest point within --tolerance.\n\n"
     "KIND 'stability': measures the critical time step of small lattice models (undamped "
-    "velocity Verlet) against 2/omega_max and geodem's refusal bound; writes stability.json and "
-    "stability_limit.png into -o DIR.\n\nKIND 'speed-accuracy': error against wall time of the "
+    "velocity Verlet) against 2/omega_max and geodem's refusal bound, the critical sub-step of "
+    "the pore-fluid and thermal fields against 2/lambda_max, and a balance's unbalanced force "
+    "against its damping; writes stability.json and stability_*.png into -o DIR.\n\n"
+    "KIND 'speed-accuracy': error against wall time of the "
     "cases with a reference (--cases; --quick: a tiny grid); docs/speed_accuracy.md."))
 @_guard
 def study_cmd(
@@ -627,19 +629,14 @@ def study_cmd(
         return
 
     if kind == "stability":
-        from geodem.labtests.stability import stability_study
+        from geodem.labtests.stability import describe, stability_study
 
         con = _out()
-
-        def said(r):
-            p = r["predicted"]
-            con.print(f"{r['model']}: 2/omega_max {p:.4g} s; diverges above "
-                      f"{r['measured'] / p:.4f} x; engine stops at {r['engine_stops'] / p:.4f} x; "
-                      f"refusal bound {r['gershgorin'] / p:.3f} x; default "
-                      f"{r['default'] / p:.3f} x", highlight=False)
-
-        stability_study(out, backend=backend or "numba", progress=said)
-        con.print(f"wrote stability.json, stability_limit.png to {out}", highlight=False)
+        res = stability_study(out, backend=backend or "numba",
+                              progress=lambda k, r: con.print(escape(describe(k, r)),
+                                                              highlight=False))
+        con.print(f"wrote {', '.join(['stability.json'] + res['plots'])} to {out}",
+                  highlight=False)
         return
     if kind != "ucs":
         _fail(f"study KIND {kind!r}: allowed: ucs, stability, speed-accuracy", USER_ERROR)

@@ -14,6 +14,9 @@ Contract of a field (one contract test runs over every registered kind):
 * ``attach(sim)``: size its own arrays for ``sim.state``; called once by ``Simulation.add_field``.
 * ``stable_dt(sim)``: its explicit stability limit [s].
 * ``substep(sim, h)``: advance its own state by ``h`` seconds (``h <= safety * stable_dt``).
+  Fields whose ``substep`` may be called directly refuse ``h > stable_dt`` with
+  :func:`check_substep` (the thermal and pore fields; ``allow_unstable=True`` is for studies of
+  where the explicit scheme fails, :mod:`geodem.labtests.stability`).
 * ``config()``: JSON-able constructor keywords; ``arrays()`` / ``restore(arrays)``: its state for
   checkpoints (a run resumed from a checkpoint continues bit-identically on CPU).
 * ``summary()``: key results as numbers (merged into a workflow's summary by the steps that use it).
@@ -45,6 +48,20 @@ def register_field(kind: str):
 
 class FieldStabilityError(RuntimeError):
     """A coupled field cannot advance stably (its own step would be needlessly tiny or invalid)."""
+
+
+def check_substep(field, sim, h: float) -> float:
+    """Refuse a sub-step ``h`` [s] of ``field`` that is not positive or above its explicit
+    stability limit ``field.stable_dt(sim)`` (FieldStabilityError naming the field, ``h`` and the
+    allowed range). Returns the limit [s]."""
+    lim = float(field.stable_dt(sim))
+    if not (h > 0.0 and math.isfinite(h)) or h > lim * (1.0 + 1e-12):
+        raise FieldStabilityError(
+            f"coupled field {field.kind!r}: sub-step h = {h!r} s is above its explicit stability "
+            f"limit; allowed: 0 < h <= stable_dt = {lim:.4g} s (beyond it the explicit update "
+            f"overshoots and, a little further, blows up); advance() sub-steps automatically at "
+            f"safety = {field.safety:g} x stable_dt")
+    return lim
 
 
 class CoupledField:

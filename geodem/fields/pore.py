@@ -89,10 +89,13 @@ Boundary conditions (``bcs``, a list of mappings)
 Explicit stability (``stable_dt``)
     With storage ``S_a = dM/dP = V_a k_f`` the explicit Euler update of pore ``a`` is
     ``P_a' = (1 - h sum_b C_ab / S_a) P_a + (h / S_a) sum_b C_ab P_b``: monotone (no overshoot,
-    the discrete maximum principle) for ``h <= S_a / sum_b C_ab`` and stable (Gershgorin:
-    every eigenvalue of the update lies in ``[1 - 2 h max(sum C / S), 1]``) for twice that. So
-    ``stable_dt = min over free pores of V_a k_f / sum_b C_ab``; the framework sub-steps at
-    ``safety`` (0.5) of it.
+    the discrete maximum principle) for ``h <= S_a / sum_b C_ab``. Gershgorin puts every
+    eigenvalue of the update in ``[1 - 2 h max(sum C / S), 1]``, so it is also stable there, and
+    not always further: two equal pores sharing one throat diverge just above ``S / C`` (the
+    exact limit is ``2 / lambda_max`` of ``S^-1/2 L S^-1/2``, 1-1.4 x the bound; measured in
+    docs/stability.md). So ``stable_dt = min over free pores of V_a k_f / sum_b C_ab``; the
+    framework sub-steps at ``safety`` (0.5) of it, and :meth:`PoreField.substep` called directly
+    refuses ``h > stable_dt``.
 
 Network update (``remesh``), conserving fluid mass
     The triangulation is rebuilt when an element has moved more than ``remesh_disp`` x the mean
@@ -125,7 +128,7 @@ import math
 import numpy as np
 from numba import njit
 
-from geodem.fields import CoupledField, register_field
+from geodem.fields import CoupledField, check_substep, register_field
 
 #: default fluid: water (K = 2.2 GPa, rho = 1000 kg/m^3 at P = 0)
 WATER_KF = 1000.0 / 2.2e9
@@ -672,6 +675,8 @@ class PoreField(CoupledField):
             raise _err(f"gap_reference = {gap_reference!r}; allowed: initial, zero")
         self.gap_reference = gap_reference
         self.sim = None
+        self._advancing = False
+        self._t_sub = 0.0
 
     # ------------------------------------------------------------------ config
     def config(self) -> dict:
@@ -1010,7 +1015,13 @@ class PoreField(CoupledField):
             return math.inf
         return float((self.V[free] * self.k_f / self.csum[free]).min())
 
-    def substep(self, sim, h: float) -> None:
+    def substep(self, sim, h: float, allow_unstable: bool = False) -> None:
+        """One explicit Euler sub-step of ``h`` seconds. Called directly (not from
+        :meth:`advance`, which sub-steps at ``safety`` x :meth:`stable_dt`), ``h`` above
+        :meth:`stable_dt` is refused (FieldStabilityError) unless ``allow_unstable`` (studies of
+        where the scheme fails, :mod:`geodem.labtests.stability`)."""
+        if not (allow_unstable or self._advancing):
+            check_substep(self, sim, h)
         t = self._t_sub + h
         self._t_sub = t
         pset = self._pset(t)
@@ -1025,7 +1036,11 @@ class PoreField(CoupledField):
         self._prepare(sim)
         self._t_sub = st.time - span
         self._hold_now(self._t_sub)
-        n = super().advance(sim, span)
+        self._advancing = True
+        try:
+            n = super().advance(sim, span)
+        finally:
+            self._advancing = False
         self.couplings += 1
         self.update_pressure()
         if self.forces:

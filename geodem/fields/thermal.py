@@ -75,7 +75,7 @@ import numpy as np
 from numba import prange
 
 from geodem.core.state import broken_code
-from geodem.fields import CoupledField, FieldStabilityError, register_field
+from geodem.fields import CoupledField, FieldStabilityError, check_substep, register_field
 
 DEPOSIT = {"viscous": "q_visc", "break_normal": "q_break_n", "break_shear": "q_break_s",
            "friction": "q_fric"}
@@ -359,10 +359,15 @@ class ThermalField(CoupledField):
         self._conductances(sim)
         return float(kernels()[1](self.cap, self.hsum, self.fixed_mask))
 
-    def substep(self, sim, h: float) -> None:
+    def substep(self, sim, h: float, allow_unstable: bool = False) -> None:
         """One Euler step of (1) over ``h`` seconds of thermal time (conductances from the
-        current geometry)."""
-        self._conductances(sim)
+        current geometry). ``h`` above :meth:`stable_dt` is refused (FieldStabilityError) unless
+        ``allow_unstable`` (studies of where the scheme fails; :meth:`advance` sub-steps at
+        ``safety`` x the limit and does not come here)."""
+        if not allow_unstable:
+            check_substep(self, sim, h)  # also refreshes the conductances
+        else:
+            self._conductances(sim)
         kernels()[2](1, float(h), self.T, self.cap, self.fixed_mask, sim.state.nbr, self.hmat,
                      self.flux, self.time, self.ramp_t0, self.ramp, self.fstart, self.ftarget)
         self.time += float(h)

@@ -77,6 +77,7 @@ class Plan:
     checkpoint_bytes: int
     runtime_s: float
     compile_s: float
+    initial_overlap: float = 0.0
 
 
 @dataclass
@@ -177,6 +178,45 @@ def _build(cfg, doc):
     return built
 
 
+def initial_overlap(state, chunk: int = 200_000) -> tuple[float, int, int]:
+    """Largest overlap of a contact in the rows with at least one free element, as a fraction
+    of the smaller radius: ``(ratio, i, j)``; ``(0.0, -1, -1)`` when nothing overlaps. (Overlaps
+    between fixed elements are :func:`geodem.core.engine.validate_state`'s business.)"""
+    best, bi, bj = 0.0, -1, -1
+    movable = (state.free != 0).any(axis=1)
+    for lo in range(0, state.n, chunk):
+        hi = min(state.n, lo + chunk)
+        nb = state.nbr[lo:hi]
+        i = np.broadcast_to(np.arange(lo, hi)[:, None], nb.shape)
+        ok = (nb >= 0) & (movable[i] | movable[np.maximum(nb, 0)])
+        if not ok.any():
+            continue
+        i, j = i[ok], nb[ok]
+        dist = np.linalg.norm(state.x[j] - state.x[i], axis=1)
+        ri, rj = state.r[i], state.r[j]
+        ratio = (ri + rj - dist) / np.minimum(ri, rj)
+        k = int(np.argmax(ratio))
+        if ratio[k] > best:
+            best, bi, bj = float(ratio[k]), int(min(i[k], j[k])), int(max(i[k], j[k]))
+    return best, bi, bj
+
+
+def _check_initial_overlap(cfg, doc, state) -> float:
+    """Refuse a model that starts with a free element overlapping another by more than
+    ``simulation.overlap_limit`` x the smaller radius: the contact force throws the pair apart
+    at once, and the run would only stop at its first overlap check, on a wrecked packing."""
+    ratio, i, j = initial_overlap(state)
+    lim = cfg.simulation.overlap_limit
+    if ratio > lim:
+        raise WorkflowError(doc.error(("model",), (
+            f"elements {i} and {j} overlap by {ratio:.3g} x the smaller radius at the start, "
+            f"more than simulation.overlap_limit = {lim:g} (at least one of them is free: the "
+            f"contact force would throw them apart in the first steps); allowed: initial "
+            f"overlaps up to simulation.overlap_limit x the smaller radius: build a looser "
+            f"packing, or raise simulation.overlap_limit (at most 1)")))
+    return ratio
+
+
 def _time_step(cfg, doc, state) -> tuple[float, str, float]:
     from geodem.core import timestep
 
@@ -249,6 +289,7 @@ def prepare(path, sets=(), backend: str | None = None) -> Prepared:
     doc, cfg, name, resolved = validated(path, sets, backend)
     need, avail = _check_memory(cfg, doc)
     built = _build(cfg, doc)
+    overlap = _check_initial_overlap(cfg, doc, built.state)
     dt, source, stable = _time_step(cfg, doc, built.state)
     info = _PlanInfo(dt, built.n_across)
     steps = [int(s.planned_steps(info)) for s in cfg.steps]
@@ -258,7 +299,7 @@ def prepare(path, sets=(), backend: str | None = None) -> Prepared:
     plan = Plan(dt=dt, dt_source=source, stable_dt=stable, n_across=built.n_across, steps=steps,
                 total_steps=total, n_elements=st.n, memory_bytes=need, memory_available=avail,
                 output_bytes=output, checkpoint_bytes=int(st.nbytes()) + 4096,
-                runtime_s=runtime, compile_s=compile_s)
+                runtime_s=runtime, compile_s=compile_s, initial_overlap=overlap)
     return Prepared(Path(path), doc, cfg, name, built, plan, resolved, config_hash(resolved),
                     tuple(sets))
 
