@@ -71,7 +71,8 @@ class CupyBackend:
 
     def attach(self, state):
         self.s = state
-        self.k_move, self.k_force, self.k_energy = make_kernels(state.dim, "cuda")
+        self.k = make_kernels(state.dim, "cuda")
+        self.idx = None
         self.dev = {}
         self.push()
 
@@ -122,25 +123,45 @@ class CupyBackend:
     def has_new_cracks(self):
         return bool((self.dev["cstate"] >= BROKEN_BASE).any())
 
+    def set_active(self, idx=None):
+        """Step only the elements in ``idx`` (None: every element); see geodem.fields.freeze."""
+        if idx is None:
+            self.idx = None
+            return
+        arr = np.ascontiguousarray(idx, dtype=np.int64)
+        if self.xp is np:
+            self.idx = arr
+        else:  # pragma: no cover - needs a GPU
+            from numba import cuda
+
+            self.idx = cuda.as_cuda_array(self.xp.asarray(arr))
+
+    def _launch(self, full, sub, *args):
+        if self.idx is None:
+            full[self._blocks(), THREADS](*args)
+        else:
+            blocks = (self.idx.shape[0] + THREADS - 1) // THREADS
+            if blocks:
+                sub[blocks, THREADS](self.idx, *args)
+
     def move(self, dt):
         d = self.view
-        self.k_move[self._blocks(), THREADS](d["x"], d["v"], d["a"], d["dx"], d["free"],
-                                             d["fload"], d["m"], d["eta"], d["q_visc"],
-                                             d["w_ext"], dt)
+        self._launch(self.k.move, self.k.move_idx, d["x"], d["v"], d["a"], d["dx"], d["free"],
+                     d["fload"], d["m"], d["eta"], d["q_visc"], d["w_ext"], dt)
 
     def force(self, dt, code_t, code_s):
         s, d = self.s, self.view
         g = s.gravity
-        self.k_force[self._blocks(), THREADS](
-            d["x"], d["v"], d["a"], d["dx"], d["free"], d["fload"], d["props"], d["m"],
-            d["eta"], d["nbr"], d["cstate"], d["fs"],
-            d["brate"], d["q_visc"], d["q_break_n"], d["q_break_s"], d["q_fric"], d["w_ext"],
-            float(g[0]), float(g[1]), float(g[2]) if s.dim == 3 else 0.0, dt, code_t, code_s,
-            int(s.hertz))
+        self._launch(self.k.force, self.k.force_idx,
+                     d["x"], d["v"], d["a"], d["dx"], d["free"], d["fload"], d["props"], d["m"],
+                     d["eta"], d["nbr"], d["cstate"], d["fs"],
+                     d["brate"], d["q_visc"], d["q_break_n"], d["q_break_s"], d["q_fric"],
+                     d["w_ext"], float(g[0]), float(g[1]), float(g[2]) if s.dim == 3 else 0.0,
+                     dt, code_t, code_s, int(s.hertz))
 
     def elastic_energy(self):
         d = self.view
-        self.k_energy[self._blocks(), THREADS](d["x"], d["props"], d["nbr"],
+        self.k.energy[self._blocks(), THREADS](d["x"], d["props"], d["nbr"],
                                                d["cstate"], d["fs"], int(self.s.hertz),
                                                d["e_el"])
         return self.e_el if self.xp is np else self.e_el.get()

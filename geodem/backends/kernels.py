@@ -167,7 +167,9 @@ def _bodies(DIM, jit_device):
 
 @functools.lru_cache(maxsize=None)
 def make_kernels(dim: int, target: str):
-    """Compile ``(move, force, energy)`` for ``dim`` in {2, 3} and ``target`` in {cpu, cuda}.
+    """Compile the kernels for ``dim`` in {2, 3} and ``target`` in {cpu, cuda}: a namespace with
+    ``move, force, energy`` over every element and ``move_idx, force_idx`` over the elements of
+    an index array (the first argument).
 
     CPU kernels take ``n`` implicitly and loop with ``prange``; CUDA kernels are launched as
     ``kernel[blocks, threads](...)`` with one thread per element.
@@ -204,7 +206,24 @@ def make_kernels(dim: int, target: str):
             for i in prange(x.shape[0]):
                 energy_b(i, x, props, nbr, cstate, fs, hertz, e_el)
 
-        return move, force, energy
+        # the same passes over a list of elements only (the others are asleep: see
+        # geodem.fields.freeze)
+        @par
+        def move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt):
+            for k in prange(idx.shape[0]):
+                move_b(idx[k], x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt)
+
+        @par
+        def force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
+                      brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s,
+                      hertz):
+            for k in prange(idx.shape[0]):
+                force_b(idx[k], x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
+                        fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
+                        code_s, hertz)
+
+        return types.SimpleNamespace(move=move, force=force, energy=energy,
+                                     move_idx=move_idx, force_idx=force_idx)
 
     if target == "cuda":
         # ``cuda`` must be a module global: the CUDA simulator swaps it in the kernels' globals
@@ -236,5 +255,22 @@ def make_kernels(dim: int, target: str):
             if i < x.shape[0]:
                 energy_b(i, x, props, nbr, cstate, fs, hertz, e_el)
 
-        return move, force, energy
+        @cuda.jit
+        def move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt):
+            k = cuda.grid(1)
+            if k < idx.shape[0]:
+                move_b(idx[k], x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt)
+
+        @cuda.jit
+        def force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
+                      brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s,
+                      hertz):
+            k = cuda.grid(1)
+            if k < idx.shape[0]:
+                force_b(idx[k], x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
+                        fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
+                        code_s, hertz)
+
+        return types.SimpleNamespace(move=move, force=force, energy=energy,
+                                     move_idx=move_idx, force_idx=force_idx)
     raise ValueError(f"unknown kernel target {target!r}; allowed: cpu, cuda")

@@ -36,6 +36,12 @@ class HostBackend:
     def has_new_cracks(self):
         return any_at_least(self.s.cstate, BROKEN_BASE)
 
+    def set_active(self, idx=None):
+        """Which elements to step (None: all). The whole-matrix reference steps every element
+        whatever it is told: asleep elements are fixed and at rest, so only their stored
+        reactions differ from a backend that skips them."""
+        self.idx = None
+
     @staticmethod
     def is_available():
         return True
@@ -49,21 +55,33 @@ class HostBackend:
 class NumbaBackend(HostBackend):
     def attach(self, state):
         super().attach(state)
-        self.k_move, self.k_force, self.k_energy = make_kernels(state.dim, "cpu")
+        self.k = make_kernels(state.dim, "cpu")
+        self.idx = None
+
+    def set_active(self, idx=None):
+        """Step only the elements in ``idx`` (None: every element); see geodem.fields.freeze."""
+        self.idx = None if idx is None else np.ascontiguousarray(idx, dtype=np.int64)
 
     def move(self, dt):
         s = self.s
-        self.k_move(s.x, s.v, s.a, s.dx, s.free, s.fload, s.m, s.eta, s.q_visc, s.w_ext, dt)
+        args = (s.x, s.v, s.a, s.dx, s.free, s.fload, s.m, s.eta, s.q_visc, s.w_ext, dt)
+        if self.idx is None:
+            self.k.move(*args)
+        else:
+            self.k.move_idx(self.idx, *args)
 
     def force(self, dt, code_t, code_s):
         s = self.s
         g = s.gravity
-        self.k_force(s.x, s.v, s.a, s.dx, s.free, s.fload, s.props, s.m, s.eta, s.nbr, s.cstate,
-                     s.fs, s.brate, s.q_visc, s.q_break_n,
-                     s.q_break_s, s.q_fric, s.w_ext, g[0], g[1], g[2] if s.dim == 3 else 0.0,
-                     dt, code_t, code_s, int(s.hertz))
+        args = (s.x, s.v, s.a, s.dx, s.free, s.fload, s.props, s.m, s.eta, s.nbr, s.cstate,
+                s.fs, s.brate, s.q_visc, s.q_break_n, s.q_break_s, s.q_fric, s.w_ext,
+                g[0], g[1], g[2] if s.dim == 3 else 0.0, dt, code_t, code_s, int(s.hertz))
+        if self.idx is None:
+            self.k.force(*args)
+        else:
+            self.k.force_idx(self.idx, *args)
 
     def elastic_energy(self):
         s = self.s
-        self.k_energy(s.x, s.props, s.nbr, s.cstate, s.fs, int(s.hertz), self.e_el)
+        self.k.energy(s.x, s.props, s.nbr, s.cstate, s.fs, int(s.hertz), self.e_el)
         return self.e_el

@@ -445,6 +445,9 @@ class Simulation:
             f.restore(unpack_arrays(k, more))
             f.substeps = int(rec.get("substeps", 0))
         sim.backend.push()
+        for f in sim.fields:
+            if hasattr(f, "resume"):  # a field that tells the backend what to step
+                f.resume(sim)
         return sim
 
     def bonded_count(self) -> int:

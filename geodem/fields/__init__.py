@@ -140,7 +140,7 @@ def load_builtin() -> None:
     """Import the built-in fields (they register themselves)."""
     import importlib
 
-    for mod in ("geodem.fields.thermal", "geodem.fields.pore"):
+    for mod in ("geodem.fields.thermal", "geodem.fields.pore", "geodem.fields.freeze"):
         try:
             importlib.import_module(mod)
         except ModuleNotFoundError as exc:  # a field module not written yet
