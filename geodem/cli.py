@@ -7,6 +7,8 @@
     geodem run FILE.yaml -o DIR [--backend B] [--set a.b=c ...] [--dry-run] [--resume]
                [--stop-after-steps N] [--overwrite] [--no-progress] [-v]
     geodem validate FILE.yaml [--set a.b=c ...] [--backend B]
+    geodem advise FILE.yaml [--set a.b=c ...] [--backend B] [--no-calibrate]
+                  [--target-error E] [--speed-accuracy CSV] [--json]
     geodem sweep FILE.yaml --param a.b=1,2,3 [--param ...] [--zip] [--seeds N]
                  [--scheduler ADDRESS | --workers N] [--resume | --overwrite] -o DIR
     geodem schema [-o FILE]
@@ -778,6 +780,44 @@ def validate_cmd(
     p = prep.plan
     sys.stdout.write(f"{file}: valid ({p.n_elements:,} elements, dt = {p.dt:.4g} s, "
                      f"{p.total_steps:,} time steps, backend {prep.backend})\n")
+
+
+@app.command("advise", help=(
+    "What a workflow will cost and how it could cost less, without running it.\n\n"
+    "Validates and builds FILE.yaml as 'geodem validate' does, times the built model on this "
+    "machine for about half a second (--no-calibrate: the documented throughput instead), and "
+    "prints elements, dimension, memory, planned time steps, the estimated wall time and "
+    "suggestions: 2-D or not, the time-step fraction against the stability bound, and the "
+    "resolution for --target-error from a 'geodem study speed-accuracy' CSV when one is found. "
+    "Exit 0, or 2 and one line per problem for an invalid workflow. See docs/advise.md."))
+@_guard
+def advise_cmd(
+    file: Annotated[str, typer.Argument(metavar="FILE.yaml", help="Workflow file.")],
+    sets: Annotated[Optional[list[str]], typer.Option(
+        "--set", metavar="KEY=VALUE", help="Override a value (as for geodem run).")] = None,
+    backend: Annotated[Optional[str], typer.Option(
+        "--backend", callback=_parse_backend, help="Backend to estimate for.")] = None,
+    no_calibrate: Annotated[bool, typer.Option(
+        "--no-calibrate", help="Use the documented throughput (docs/performance.md) instead "
+                               "of timing the model here.")] = False,
+    target_error: Annotated[float, typer.Option(
+        "--target-error", min=1e-9, max=0.999, help="Relative error the resolution "
+                                                     "suggestion aims at.")] = 0.01,
+    speed_csv: Annotated[Optional[str], typer.Option(
+        "--speed-accuracy", metavar="CSV", help="speed_accuracy.csv of 'geodem study "
+        "speed-accuracy'. \\[default: out/speed_accuracy/speed_accuracy.csv if present]")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print a JSON object.")] = False,
+):
+    from geodem.advise import advise, report_lines
+
+    a = advise(file, sets=_parse_sets(sets), backend=backend, calibrate=not no_calibrate,
+               target_error=target_error, speed_csv=speed_csv)
+    if as_json:
+        sys.stdout.write(json.dumps(a, indent=2) + "\n")
+        return
+    con = _out()
+    for line in report_lines(a):
+        con.print(escape(line), highlight=False, soft_wrap=True)
 
 
 @app.command("schema")

@@ -245,7 +245,9 @@ def _default_groups(state, chosen):
     return [g for g in state.groups if g != "all"]
 
 
-def _estimate(cfg, backend, built, total_steps, n, dim):
+def _estimate(cfg, backend, built, total_steps, n, dim, rate=None):
+    """``(output bytes, run time [s], compile time [s])``; ``rate``: element-steps/s of the
+    stepping (default: the backend's figure in EST_RATE, from docs/performance.md)."""
     st = built.state
     obs = cfg.outputs.observables
     samples = total_steps // obs.every + 2
@@ -259,7 +261,7 @@ def _estimate(cfg, backend, built, total_steps, n, dim):
     members = sum(st.n if g == "all" else int((st.group == st.groups[g]).sum())
                   for g in fr.groups)
     output = samples * series_bytes + frames * members * per_el + 64 * 1024
-    rate = EST_RATE.get(backend, 4.0e6)
+    rate = rate or EST_RATE.get(backend, 4.0e6)
     # measured on the 2-core machine of docs/performance.md: ~1.2 ms per observation (energies
     # by group, reactions, crack counts) plus the passes over the elements, ~5 ms per frame
     runtime = 0.2 + total_steps * (n / rate + 5e-6) + samples * (1.2e-3 + 5e-7 * n) \
