@@ -12,7 +12,6 @@ import yaml
 
 from geodem.core import groups
 from geodem.workflow import run_workflow
-from geodem.workflow.errors import WorkflowError
 from geodem.workflow.runner import prepare
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
@@ -68,11 +67,3 @@ def test_prepared_model_has_a_lattice_inside_six_walls(tmp_path):
     assert 2.0 * (st.cstate[spec] == 1).sum() / 2 / spec.size > 6.0
     for wall in ("xmin", "xmax", "ymin", "ymax", "bottom", "top"):
         assert groups.members(st, wall).size > 0
-
-
-def test_random_3d_box_is_refused_with_the_alternative(tmp_path):
-    p = write(tmp_path, {"confining_pressures": [1.0e6]}, model={"packing": "random"})
-    with pytest.raises(WorkflowError) as exc:
-        prepare(p)
-    msg = str(exc.value)
-    assert "packing" in msg and "lattice" in msg
