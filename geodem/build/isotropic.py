@@ -54,7 +54,6 @@ FTOL = 1e-2  # FIRE: largest net force / target overlap (k = 1, d_mean = 1)
 DEFAULT_OVERLAP = 1e-4
 DEFAULT_GAP = 1e-2
 DEFAULT_PRESTRESS = 1e-6
-_DEBUG = False
 
 
 # ============================================================================ kernels (reduced)
@@ -228,8 +227,6 @@ def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60):
         st, it = _minimise(xt, r, lo, hi, ftol, emin)
         iters += it
         ov = _load(xt, r, lo, hi) if st != 1 else 0.0
-        if _DEBUG:
-            print(f"cycle {cycles} lam {lam:.7f} status {st} iters {it} ov {ov:.3g}")
         if 0.5 * overlap <= ov <= 2.0 * overlap:
             return xt, r, {"cycles": cycles, "fire_iterations": iters, "scale": lam,
                            "mean_overlap": ov, "status": int(st)}

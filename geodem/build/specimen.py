@@ -19,7 +19,9 @@
     then (reported).
 
 ``make_specimen(shape, size, d_mean, distri_rate, material, dim, seed)``
-    deposit (:mod:`geodem.build.packing`) in a box 1.5 ``d_mean`` wider than the specimen on every
+    3-D: :func:`isotropic_specimen` (isotropic compression by radius expansion inside the
+    shape's bounding box, :mod:`geodem.build.isotropic`; bonds stress-free, flat faces).
+    2-D: deposit (:mod:`geodem.build.packing`) in a box 1.5 ``d_mean`` wider than the specimen on every
     side and about 2 ``d_mean`` taller, compact with the platen, lift the platen and stiffen the
     packing to the material's ``kn`` (:func:`packing.stiffen`: the locked-in overlaps shrink
     below the bonds' breaking displacement), cut the shape (centres inside;

@@ -8,7 +8,9 @@ and the ``triaxial`` step.
   walls ``xmin``, ``xmax``, ``ymin``, ``ymax`` and platens along z. The loading axis is the last
   axis. With ``wall_margin`` = -0.5 (default) every wall spans exactly its face, so walls of
   neighbouring faces stay ``sqrt(2) d`` apart at the corners and never touch (wall-wall contact
-  forces would corrupt the measured reactions).
+  forces would corrupt the measured reactions). In 3-D the walls are head-on instead (one wall
+  element per face element, :func:`face_walls` for ``packing: random``, :func:`lattice_walls`
+  for ``packing: lattice``); ``wall_element`` and ``wall_margin`` then do not apply.
 
 * step ``triaxial``: one test per confining stress ``sigma3`` of ``confining_pressures``, each on
   a fresh copy of the model as it was when the step started (the state is restored in place,
@@ -216,6 +218,10 @@ def box_specimen(size, d_mean, distri_rate, material: SpecimenMaterial, dim, see
     3. keep the packed elements, cement them (:func:`geodem.build.specimen.cement`, every pair
        within the smallest ``xb`` bonded, at most ``2e-4 d_mean`` for unbreakable materials;
        balanced), Morton-sort.
+
+    3-D: :func:`geodem.build.specimen.isotropic_specimen` instead (isotropic compression by
+    radius expansion inside the box itself, every face flat at the box, bonds stress-free;
+    :mod:`geodem.build.isotropic`); the steps above are the 2-D recipe.
 
     The height is the packing's: close to ``size[-1]`` (within about one ``d_mean``). Returns
     ``(state, report)`` like ``make_specimen`` (``report["packing"]`` holds the packing
