@@ -602,8 +602,8 @@ def _float_list(value: Optional[str], name: str, integer=False):
     "cases with a reference (--cases; --quick: a tiny grid); docs/speed_accuracy.md."))
 @_guard
 def study_cmd(
-    kind: Annotated[str, typer.Argument(metavar="KIND", help="ucs, stability or "
-                                                             "speed-accuracy")],
+    kind: Annotated[str, typer.Argument(metavar="KIND", help="ucs, stability, "
+                                                             "speed-accuracy or freeze")],
     out: Annotated[str, typer.Option("-o", "--out", help="Output directory.")],
     workflow: Annotated[str, typer.Option("--workflow", help="UCS workflow file.")] =
     "workflows/ucs.yaml",
@@ -630,6 +630,14 @@ def study_cmd(
         run_cli(out, cases, quick, backend, _out(), lambda msg: _fail(msg, USER_ERROR))
         return
 
+    if kind == "freeze":
+        from geodem.labtests.freeze_study import describe, freeze_study
+
+        con = _out()
+        freeze_study(out, progress=lambda r: con.print(escape(describe(r)), highlight=False))
+        con.print(f"wrote freeze_study.json, freeze_study.md to {out}", highlight=False)
+        return
+
     if kind == "stability":
         from geodem.labtests.stability import describe, stability_study
 
@@ -641,7 +649,8 @@ def study_cmd(
                   highlight=False)
         return
     if kind != "ucs":
-        _fail(f"study KIND {kind!r}: allowed: ucs, stability, speed-accuracy", USER_ERROR)
+        _fail(f"study KIND {kind!r}: allowed: ucs, stability, speed-accuracy, freeze",
+              USER_ERROR)
     n = _float_list(across, "--across", integer=True)
     f = _float_list(fractions, "--dt-fractions")
     if any(v > 0.2 for v in f):

@@ -4,13 +4,15 @@ A scene such as a landslide spends most of its element-steps on ground that neve
 coupled field (kind ``"freeze"``) puts such elements to sleep and the backends then skip them:
 
 * **calm**: a free element whose speed is below ``v_sleep`` [m/s] and whose acceleration
-  (net force / mass, gravity and damping included) is below ``a_sleep`` [m/s^2];
+  (net force / mass, gravity and damping included) is below ``a_sleep`` [m/s^2] (default
+  ``omega v_sleep``, ``omega = sqrt(kn / 2m)`` its own frequency: the acceleration of an
+  element oscillating at ``v_sleep``);
 * **asleep**: calm at ``patience`` consecutive couplings. Its velocity is set to zero and its
   degrees of freedom are fixed: it stays where it is and its stored acceleration becomes its
   contact reaction ``F_contact / m`` (as for any fixed element);
 * **awake again**: an asleep element whose unbalanced acceleration
-  ``|F_contact/m + g + F_load/m|`` exceeds ``a_wake`` (something pushes it: an impact, a
-  neighbour that moved away). Its degrees of freedom are freed (velocity zero).
+  ``|F_contact/m + g + F_load/m|`` exceeds ``a_wake`` (default ``2 a_sleep``; something
+  pushes it: an impact, a neighbour that moved away). Its degrees of freedom are freed (velocity zero).
 
 Every coupling sorts the elements at rest (asleep, or fixed with zero velocity) into
 **border** ones, that have a neighbour in their row (contacts and near neighbours within the
@@ -44,27 +46,32 @@ from geodem.fields import CoupledField, register_field
 class FreezeField(CoupledField):
     """Put calm free elements to sleep and wake them when pushed (see the module doc).
 
-    Parameters: ``v_sleep`` [m/s], ``a_sleep`` [m/s^2] (default ``a_wake / 2``), ``a_wake``
-    [m/s^2], ``patience`` (consecutive calm couplings before sleeping), ``every`` (mechanical
-    steps between couplings), ``group``: only elements of this group may sleep (default every
-    free element)."""
+    Parameters: ``v_sleep`` [m/s]; ``a_wake`` [m/s^2] (default per element
+    ``2 omega v_sleep``, ``omega = sqrt(kn / 2m)``); ``a_sleep`` [m/s^2] (default
+    ``a_wake / 2``); ``patience`` (consecutive calm couplings before sleeping); ``every``
+    (mechanical steps between couplings); ``group``: only elements of this group may sleep
+    (default every free element).
+    """
 
     reads = {"v": "m/s", "a": "m/s^2", "free": "1", "fload": "N", "m": "kg", "eta": "kg/s",
              "x": "m", "nbr": "1"}
     writes = {"v": "m/s", "a": "m/s^2", "free": "1", "q_visc": "J", "w_ext": "J"}
     safety = 1.0
 
-    def __init__(self, v_sleep: float, a_wake: float, a_sleep: float | None = None,
-                 patience: int = 3, every: int = 10, group: str | None = None):
+    def __init__(self, v_sleep: float, a_wake: float | None = None,
+                 a_sleep: float | None = None, patience: int = 3, every: int = 10,
+                 group: str | None = None):
         super().__init__(every)
         for name, val in (("v_sleep", v_sleep), ("a_wake", a_wake)):
-            if not (val > 0 and math.isfinite(val)):
+            if val is not None and not (val > 0 and math.isfinite(val)):
                 raise ValueError(f"{name} = {val!r}: must be a positive finite number")
-        self.v_sleep, self.a_wake = float(v_sleep), float(a_wake)
-        self.a_sleep = 0.5 * self.a_wake if a_sleep is None else float(a_sleep)
-        if not (0 < self.a_sleep <= self.a_wake):
+        self.v_sleep = float(v_sleep)
+        self.a_wake = None if a_wake is None else float(a_wake)
+        self.a_sleep = None if a_sleep is None else float(a_sleep)
+        if self.a_sleep is not None and not (
+                0 < self.a_sleep <= (self.a_wake if self.a_wake is not None else math.inf)):
             raise ValueError(f"a_sleep = {a_sleep!r}: allowed 0 < a_sleep <= a_wake "
-                             f"({self.a_wake:g})")
+                             f"({self.a_wake})")
         if int(patience) < 1:
             raise ValueError(f"patience = {patience!r}: must be >= 1")
         self.patience = int(patience)
@@ -86,6 +93,18 @@ class FreezeField(CoupledField):
             sel[groups.members(st, self.group)] = True
             self.may_sleep &= sel
         self.n_deep = 0
+        self._thresholds(st)
+
+    def _thresholds(self, st) -> None:
+        # an element oscillating at speed v_sleep on its own spring (omega = sqrt(kn/(2m)),
+        # the wall-bond stiffness of the time step) accelerates at up to omega v_sleep: the
+        # default sleep threshold, and twice it wakes (a stiff rock needs larger ones than
+        # gravity suggests, or sleepers frozen slightly off balance wake each other in turn)
+        omega = np.sqrt(0.5 * st.kn / st.m)
+        self.a_wake_i = (np.full(st.n, self.a_wake) if self.a_wake is not None
+                         else 2.0 * omega * self.v_sleep)
+        self.a_sleep_i = (np.full(st.n, self.a_sleep) if self.a_sleep is not None
+                          else 0.5 * self.a_wake_i)
 
     def stable_dt(self, sim) -> float:
         return math.inf  # no dynamics of its own
@@ -104,13 +123,16 @@ class FreezeField(CoupledField):
 
     def arrays(self) -> dict:
         return {"free0": self.free0, "asleep": self.asleep, "calm": self.calm,
-                "may_sleep": self.may_sleep}
+                "may_sleep": self.may_sleep, "a_wake_i": self.a_wake_i,
+                "a_sleep_i": self.a_sleep_i}
 
     def restore(self, arrays: dict) -> None:
         self.free0 = np.array(arrays["free0"])
         self.asleep = np.array(arrays["asleep"], bool)
         self.calm = np.array(arrays["calm"], np.int32)
         self.may_sleep = np.array(arrays["may_sleep"], bool)
+        self.a_wake_i = np.array(arrays["a_wake_i"])
+        self.a_sleep_i = np.array(arrays["a_sleep_i"])
 
     def resume(self, sim) -> None:
         """Hand the backend its list again after a checkpoint was loaded."""
@@ -134,12 +156,12 @@ class FreezeField(CoupledField):
         awake = ~self.asleep
         acc2 = (st.a * st.a).sum(axis=1)  # free: the net acceleration
         calm = self.may_sleep & awake & (speed2 < self.v_sleep ** 2) & \
-            (acc2 < self.a_sleep ** 2)
+            (acc2 < self.a_sleep_i ** 2)
         self.calm = np.where(calm, self.calm + 1, 0).astype(np.int32)
         fall = calm & (self.calm >= self.patience)
         # asleep elements are fixed: a holds the contact reaction F/m
         net = st.a + g[None, :] + st.fload / st.m[:, None]
-        wake = self.asleep & ((net * net).sum(axis=1) > self.a_wake ** 2)
+        wake = self.asleep & ((net * net).sum(axis=1) > self.a_wake_i ** 2)
         if fall.any() or wake.any():
             snap = {k: getattr(st, k).copy() for k in ("free", "v", "fload", "eta")}
             # books: kinetic energy of a sleeper -> heat; gravity energy leaving/entering the

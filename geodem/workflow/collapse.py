@@ -81,6 +81,7 @@ from pydantic import PrivateAttr
 from geodem.workflow.models import BuildError, BuiltModel, element_params, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, register_model, \
     register_step
+from geodem.workflow.animation import save_gif
 
 HISTORY = "collapse_history.csv"
 PROGRESS = "collapse.json"
@@ -463,7 +464,6 @@ class _Collapse:
 
     # ------------------------------------------------------------------ helpers
     def _front(self, st, k):
-        c = self.cols[k]
         i = self.idx[k]
         f, _ = deposit_front(st.x[i], st.r[i], self.p.link_gap * self.d)
         return f
@@ -501,7 +501,7 @@ class _Collapse:
 
     # ------------------------------------------------------------------ main
     def run(self):
-        ctx, p = self.ctx, self.p
+        ctx = self.ctx
         st = ctx.state
         (self.out / FRAMES_DIR).mkdir(exist_ok=True)
         header = ["step", "time", "phase", "kinetic", "released"] + \
@@ -690,7 +690,7 @@ class _Collapse:
                     path, rows, self.cols, self.tau)),
             ]
             if p.gif:
-                from geodem.workflow.hydrofrac import gif_writer_missing
+                from geodem.workflow.animation import gif_writer_missing
 
                 why = gif_writer_missing()
                 if why:
@@ -835,24 +835,9 @@ def write_gif(path, frames, c, res, d):
         fig.canvas.draw()
         return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 
-    try:
-        import imageio.v2 as imageio
-
-        imageio.mimsave(path, [render(z) for z in data], duration=0.12, loop=0)
-        plt.close(fig)
-        return path
-    except ImportError:
-        pass
-    try:
-        from matplotlib.animation import FuncAnimation, PillowWriter
-
-        anim = FuncAnimation(fig, lambda k: render(data[k]), frames=len(data))
-        anim.save(str(path), writer=PillowWriter(fps=8))
-        plt.close(fig)
-        return path
-    except Exception:  # noqa: BLE001 - no Pillow: skipped
-        plt.close(fig)
-        return None
+    images = [render(z) for z in data]
+    plt.close(fig)
+    return save_gif(path, images, fps=8)
 
 
 __all__ = ["GranularColumn", "ColumnCollapse", "lube_2005", "column_dims", "deposit_front"]

@@ -77,6 +77,7 @@ from geodem.workflow.labtests import material_problems
 from geodem.workflow.models import BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, Strict, StepBase, register_model, \
     register_step
+from geodem.workflow.animation import gif_writer_missing, save_gif
 
 CURVE = "hydrofrac_curve.csv"
 COLUMNS = ("step", "time", "injection_pressure", "cracks_total", "cracks_tensile",
@@ -882,17 +883,6 @@ def plot_history(path, a, t0, breakdown, hw):
     return path
 
 
-def gif_writer_missing() -> str | None:
-    """Why no GIF can be written (None when imageio or Pillow is installed)."""
-    for mod in ("imageio", "PIL"):
-        try:
-            __import__(mod)
-            return None
-        except ImportError:
-            continue
-    return "neither imageio nor Pillow is installed (pip install imageio)"
-
-
 def write_gif(path, frames, centre, R, d, ref):
     """Animation of the pore-pressure maps: imageio if installed, else matplotlib's
     PillowWriter; returns None (skipped) when neither can write a GIF."""
@@ -913,25 +903,9 @@ def write_gif(path, frames, centre, R, d, ref):
         fig.canvas.draw()
         return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 
-    try:
-        import imageio.v2 as imageio
-
-        images = [render(z) for z in data]
-        imageio.mimsave(path, images, duration=0.15, loop=0)
-        plt.close(fig)
-        return path
-    except ImportError:
-        pass
-    try:
-        from matplotlib.animation import FuncAnimation, PillowWriter
-
-        anim = FuncAnimation(fig, lambda k: render(data[k]), frames=len(data))
-        anim.save(str(path), writer=PillowWriter(fps=6))
-        plt.close(fig)
-        return path
-    except Exception:  # noqa: BLE001 - no Pillow: skipped with the reason
-        plt.close(fig)
-        return None
+    images = [render(z) for z in data]
+    plt.close(fig)
+    return save_gif(path, images, fps=7)
 
 
 __all__ = ["HydrofracPlate", "HydraulicFracturing", "FluidSpec", "PoreFlow", "PoreFluidSpec",

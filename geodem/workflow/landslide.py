@@ -73,7 +73,7 @@ from pydantic import model_validator
 
 from geodem.workflow.models import BuildError, BuiltModel, element_params, \
     state_bytes_per_element
-from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, register_model, \
+from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, Strict, register_model, \
     register_step
 
 HISTORY = "landslide_history.csv"
@@ -372,6 +372,23 @@ def landslide_metrics(x0, x, r, m, dim, moved, direction=None) -> dict:
 
 
 # ============================================================================ step
+class FreezeSpec(Strict):
+    """Freezing of elements at rest (:mod:`geodem.fields.freeze`): calm elements fall asleep
+    and the kernels skip those with no moving neighbour; a push wakes them."""
+
+    v_sleep: float = F(1e-3, unit="m/s", gt=0, description="Speed below which an element is "
+                                                           "calm")
+    a_wake: Optional[float] = F(None, unit="m/s^2", gt=0,
+                                description="Unbalanced acceleration that wakes a sleeper (calm "
+                                            "below half of it); default per element "
+                                            "2 v_sleep sqrt(kn / 2m)")
+    patience: Int = F(3, ge=1, le=1000, description="Calm couplings in a row before sleeping")
+    every: Int = F(10, ge=1, le=10000, description="Time steps between couplings")
+    group: Optional[Name] = F("ground", description="Only elements of this group may sleep "
+                                                    "(ground: the slide never sleeps; null: "
+                                                    "any free element)")
+
+
 @register_step("landslide")
 class LandslideStep(StepBase):
     """Gravity settling, then a strength-reduction trigger (bonds across the sliding surface
@@ -399,6 +416,13 @@ class LandslideStep(StepBase):
     damping_ratio: float = F(0.0, ge=0, le=1,
                              description="Mass damping during the runout, fraction of "
                                          "critical (0: none)")
+    ground_damping_ratio: float = F(0.0, ge=0, le=1,
+                                    description="Mass damping of the ground (every free element "
+                                                "outside the slide) during the runout, fraction "
+                                                "of critical: stands in for the waves a bounded "
+                                                "model cannot radiate away (0: none)")
+    freeze: Optional[FreezeSpec] = F(None, description="Put elements at rest to sleep during "
+                                                       "the runout (docs/freezing.md)")
     max_time: float = F(60.0, unit="s", gt=0, description="Longest runout time")
     min_time: float = F(2.0, unit="s", ge=0, description="Runout time before the rest test")
     rest_speed: float = F(0.05, unit="m/s", gt=0,
@@ -436,7 +460,7 @@ class LandslideStep(StepBase):
         wall0 = time.perf_counter()
         st = ctx.state
         info = ctx.model.info
-        dim, d = st.dim, float(info["diameter"])
+        d = float(info["diameter"])
         self._georef(ctx)
         settle = self._settle_steps(ctx.plan)
         slide = groups.members(st, "slide")
@@ -453,6 +477,13 @@ class LandslideStep(StepBase):
             x0, t0 = st.x[slide].copy(), float(st.time)
             np.savez(start, x0=x0, t0=t0)
             self._trigger(ctx, slide)
+            if self.freeze is not None:  # (a resumed run gets it back from its checkpoint)
+                from geodem.fields.freeze import FreezeField
+
+                fz = self.freeze
+                ctx.sim.add_field(FreezeField(v_sleep=fz.v_sleep, a_wake=fz.a_wake,
+                                              patience=fz.patience, every=fz.every,
+                                              group=fz.group))
         runout_wall0 = time.perf_counter()
         total = max(1, int(math.ceil(self.max_time / ctx.plan.dt)))
         chunk = max(1, int(round(self.sample_time / ctx.plan.dt)))
@@ -528,7 +559,8 @@ class LandslideStep(StepBase):
         inner_pairs = [(a, b) for a, b in zip(ii.tolist(), nb[ii, jj].tolist()) if a < b]
         if self.strength_factor == 0.0 and inner_pairs:
             cut += ctx.sim.cut([p[0] for p in inner_pairs], [p[1] for p in inner_pairs])
-        eta = self.damping_ratio * timestep.element_critical_damping(ctx.state)
+        crit = timestep.element_critical_damping(ctx.state)
+        eta = np.where(sl, self.damping_ratio, self.ground_damping_ratio) * crit
 
         def trigger(s):
             if self.slip_bond_rate > 0.0:
@@ -611,6 +643,8 @@ class LandslideStep(StepBase):
         }
         res.update({k: v for k, v in met.items() if k not in res})
         res["runout_element_steps_per_s"] = res["runout_steps"] * s.n / max(runout_wall, 1e-9)
+        if self.freeze is not None:
+            res["freeze"] = ctx.sim.field("freeze").summary()
         ctx.summary.update({k: res[k] for k in ("runout_m", "travel_angle_deg", "max_velocity",
                                                  "deposit_volume_m3", "wall_s", "elements",
                                                  "com_ratio", "stopped_by")})
@@ -632,7 +666,7 @@ class LandslideStep(StepBase):
             res["plot_snapshots"] = ctx.plot("landslide_snapshots.png", lambda p: snapshots(
                 p, s.dim, ref, s.r, slide, frames, self.snapshots, info))
             if self.gif:
-                from geodem.workflow.hydrofrac import gif_writer_missing
+                from geodem.workflow.animation import gif_writer_missing
                 from geodem.workflow.landslide_plots import animation
 
                 why = gif_writer_missing()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from geodem.workflow.animation import save_gif
 
 
 def _plt():
@@ -202,13 +203,4 @@ def animation(path, dim, ref, r, slide, frames, n, info):
         fig.canvas.draw()
         images.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
     plt.close(fig)
-    try:
-        import imageio.v2 as imageio
-
-        imageio.mimsave(path, images, duration=0.12, loop=0)
-    except ImportError:
-        from PIL import Image
-
-        pics = [Image.fromarray(im) for im in images]
-        pics[0].save(path, save_all=True, append_images=pics[1:], duration=120, loop=0)
-    return path
+    return save_gif(path, images, fps=8)

@@ -77,12 +77,12 @@ import time
 from typing import Literal, Optional
 
 import numpy as np
-from pydantic import PrivateAttr
 
 from geodem.fields import CoupledField, register_field
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, register_model, \
     register_step
+from geodem.workflow.animation import save_gif
 
 SQRT3 = math.sqrt(3.0)
 FRAMES_DIR = "seismic_frames"
@@ -878,7 +878,7 @@ class SeismicWave(StepBase):
                 res["plot_reference"] = ctx.plot("seismic_reference.png",
                                                  lambda p: plot_reference(p, ref, pulse))
             if self.gif:
-                from geodem.workflow.hydrofrac import gif_writer_missing
+                from geodem.workflow.animation import gif_writer_missing
 
                 why = gif_writer_missing()
                 if why:
@@ -1031,24 +1031,9 @@ def write_gif(path, frames, d, vmax):
         fig.canvas.draw()
         return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 
-    try:
-        import imageio.v2 as imageio
-
-        imageio.mimsave(path, [render(f) for f in frames], duration=0.12, loop=0)
-        plt.close(fig)
-        return path
-    except ImportError:
-        pass
-    try:
-        from matplotlib.animation import FuncAnimation, PillowWriter
-
-        anim = FuncAnimation(fig, lambda k: render(frames[k]), frames=len(frames))
-        anim.save(str(path), writer=PillowWriter(fps=8))
-        plt.close(fig)
-        return path
-    except Exception:  # noqa: BLE001 - no Pillow: skipped
-        plt.close(fig)
-        return None
+    images = [render(f) for f in frames]
+    plt.close(fig)
+    return save_gif(path, images, fps=8)
 
 
 __all__ = ["ValleySection", "SeismicWave", "SeismicBoundary", "Pulse", "lattice_medium",

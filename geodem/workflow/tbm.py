@@ -74,6 +74,7 @@ from geodem.workflow.labtests import material_problems, specimen_material
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, Strict, register_model, \
     register_step
+from geodem.workflow.animation import save_gif
 
 CURVE = "tbm_forces.csv"
 COLUMNS = ("step", "time", "travel", "normal_force", "rolling_force", "side_force",
@@ -570,7 +571,6 @@ class DiscCutter(StepBase):
         st = ctx.state
         info = ctx.model.info
         model = ctx.cfg.model
-        d = float(info["diameter"])
         cut = groups.members(st, "cutter")
         rock = np.setdiff1d(np.arange(st.n), cut)
         total = self.planned_steps(ctx.plan)
@@ -761,7 +761,7 @@ class DiscCutter(StepBase):
                 p, a, res, window))
             res["plot_energy"] = ctx.plot("tbm_energy.png", lambda p: plot_energy(p, a, res))
             if self.gif:
-                from geodem.workflow.hydrofrac import gif_writer_missing
+                from geodem.workflow.animation import gif_writer_missing
 
                 why = gif_writer_missing()
                 if why:
@@ -998,24 +998,9 @@ def write_gif(path, frames):
         fig.canvas.draw()
         return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 
-    try:
-        import imageio.v2 as imageio
-
-        imageio.mimsave(path, [render(f) for f in frames], duration=0.15, loop=0)
-        plt.close(fig)
-        return path
-    except ImportError:
-        pass
-    try:
-        from matplotlib.animation import FuncAnimation, PillowWriter
-
-        anim = FuncAnimation(fig, lambda k: render(frames[k]), frames=len(frames))
-        anim.save(str(path), writer=PillowWriter(fps=6))
-        plt.close(fig)
-        return path
-    except Exception:  # noqa: BLE001
-        plt.close(fig)
-        return None
+    images = [render(f) for f in frames]
+    plt.close(fig)
+    return save_gif(path, images, fps=7)
 
 
 __all__ = ["TbmRock", "DiscCutter", "CutterKinematics", "CutterSpec", "layer_of", "csm_forces",

@@ -295,7 +295,8 @@ def lattice_box_specimen(size, d_mean, material: SpecimenMaterial, dim):
     spacing = [d_mean, d_mean * math.sqrt(3) / 2] + ([d_mean * math.sqrt(2 / 3)] if dim == 3
                                                      else [])
     # x rows span (nx - 1) d + d/2 (odd rows shifted) plus one diameter of element
-    counts = [int((size[0] - 1.5 * d_mean) / d_mean) + 1] +         [int((size[a] - d_mean) / spacing[a]) + 1 for a in range(1, dim)]
+    counts = [int((size[0] - 1.5 * d_mean) / d_mean) + 1] + \
+        [int((size[a] - d_mean) / spacing[a]) + 1 for a in range(1, dim)]
     if min(counts) < 3:
         raise ValueError(f"size {size.tolist()} m holds only {counts} lattice elements of "
                          f"d_mean {d_mean:g} m along the axes; allowed: at least 3 along each")
@@ -403,9 +404,9 @@ class TriaxialBox(ModelBase):
                                                         "(MatDEM distriRate)")
     seed: Optional[int] = F(None, description="Packing seed (default: metadata.seed)")
     packing: Literal["random", "lattice"] = F(
-        "random", description="random: packed in the box (2-D only); lattice: the largest "
-                              "close-packed block (FCC in 3-D) that fits the box, all touching "
-                              "pairs bonded")
+        "random", description="random: packed in the box (deposited in 2-D, isotropic "
+                              "radius expansion in 3-D); lattice: the largest close-packed "
+                              "block (FCC in 3-D) that fits the box, all touching pairs bonded")
     material: Name = F(..., description="Material name (rock properties, per-size or direct "
                                         "element parameters, or a library material)")
     wall_element: Optional[float] = F(None, gt=0, le=2,

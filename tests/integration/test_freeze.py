@@ -8,43 +8,12 @@ import sys
 import numpy as np
 import pytest
 
-from geodem.build.lattice import bonded_state, triangular_lattice
-from geodem.build.walls import append_elements
-from geodem.core import neighbors, timestep
 from geodem.core.engine import Simulation
 from geodem.fields.freeze import FreezeField
+from geodem.labtests.freeze_study import D, settled
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
-D = 0.01
-
-
-def pile(nx=80, ny=8):
-    x = triangular_lattice(nx, ny, D)
-    st = bonded_state(x, 0.5 * D, density=2650.0, kn=1e7, ks=4e6, xb=1e-4 * D, fs0=1.0, mu=0.5,
-                      gap=1e-6 * D)
-    st.cstate[:] = 0  # cohesionless grains
-    st.free[x[:, 1] < 0.5 * D] = 0.0  # fixed base row
-    st.gravity[:2] = [0.0, -9.81]
-    top = x[:, 1].max()
-    st = append_elements(st, np.array([[5 * D, top + 3 * D]]), 0.5 * D, 4 * st.m[0], kn=1e7,
-                         mu=0.5, fixed=True)
-    neighbors.build_rows(st)
-    return st
-
-
-def settled(backend="numba"):
-    """The pile balanced, light damping (2 % of the standard damping), the ball released
-    downwards at 2 m/s; books reset."""
-    st = pile()
-    ball = st.n - 1
-    sim = Simulation(st, backend=backend)
-    sim.balance(10)
-    eta = 0.02 * timestep.standard_damping(st, 1)
-    sim.change(lambda z: z.eta.__setitem__(slice(None), eta), book_energy=False)
-    sim.change(lambda z: (z.free.__setitem__(ball, 1.0), z.v.__setitem__(ball, [0.0, -2.0])))
-    sim.reset_energy()
-    return sim
 
 
 def field():
@@ -120,7 +89,7 @@ sys.path.insert(0, sys.argv[1])
 sys.path.insert(0, sys.argv[2])
 import numpy as np
 from geodem.core.engine import Simulation
-from test_freeze import pile
+from geodem.labtests.freeze_study import pile
 out = {}
 for backend in ("cupy", "numba"):
     st = pile(nx=12, ny=4)
