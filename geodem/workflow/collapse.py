@@ -371,7 +371,7 @@ class ColumnCollapse(StepBase):
     example = {"kind": "column_collapse", "max_time": 2.0, "min_time": 0.5, "still_time": 0.5,
                "settle_balances": 1, "gif": False}
     example_model = {"type": "granular_column", "aspect_ratios": [1.0], "scale": 0.4,
-                     "material": "beads"}
+                     "material": "rock"}
     damping: float = F(0.0, ge=0, le=10,
                        description="Global damping during the flow: eta = damping x m / tau, tau "
                                    "= sqrt(H0_max / g) (0: none; the flow dissipates by "

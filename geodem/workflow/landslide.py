@@ -398,8 +398,8 @@ class LandslideStep(StepBase):
     landslide_velocity.png, landslide_deposit.png, landslide_snapshots.png, landslide.gif,
     landslide_vtk/ and georef.json."""
 
-    example = {"kind": "landslide", "max_time": 1.0, "snapshots": 2, "gif": False,
-               "vtk_frames": 2}
+    example = {"kind": "landslide", "max_time": 1.0, "min_time": 0.5, "settle": False,
+               "snapshots": 2, "gif": False, "vtk_frames": 2}
     example_model = Landslide.example
     settle: bool = F(True, description="One standard balance under gravity (damping eta_c / "
                                        "N) before the trigger")
@@ -414,8 +414,8 @@ class LandslideStep(StepBase):
                                description="Factor on the slide elements' bond strength (xb, "
                                            "fs0) at the trigger (0: their bonds are cut)")
     damping_ratio: float = F(0.0, ge=0, le=1,
-                             description="Mass damping during the runout, fraction of "
-                                         "critical (0: none)")
+                             description="Mass damping of the slide during the runout, "
+                                         "fraction of critical (0: none)")
     ground_damping_ratio: float = F(0.0, ge=0, le=1,
                                     description="Mass damping of the ground (every free element "
                                                 "outside the slide) during the runout, fraction "

@@ -32,7 +32,8 @@ WF = ROOT / "workflows" / "landslide.yaml"
 HILL = ROOT / "workflows" / "data" / "hill.tif"
 TINY = ["model.scale=0.4", "steps.slide.max_time=40.0", "steps.slide.gif_frames=4",
         "steps.slide.snapshots=2", "steps.slide.vtk_frames=2", "steps.slide.slide_friction=0.1",
-        "steps.slide.damping_ratio=0.002", "steps.slide.rest_speed=1.0"]
+        "steps.slide.damping_ratio=0.002", "steps.slide.rest_speed=1.0",
+        "steps.slide.ground_damping_ratio=0.002"]
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
 

@@ -39,8 +39,11 @@ def test_every_step_kind_runs(kind, tmp_path):
                                   {"kind": "run", "nsteps": 10}], model=cls.example_model)
     code, s = run_workflow(p, tmp_path / "out", echo=False, progress=False)
     assert code == 0 and s["status"] == "ok", s.get("error")
-    assert s["steps"] == 20 + cls.model_validate(ex).planned_steps(
-        type("P", (), {"dt": s["dt"], "n_across": 6.0})())
+    if cls.example_model is None:
+        assert s["steps"] == 20 + cls.model_validate(ex).planned_steps(
+            type("P", (), {"dt": s["dt"], "n_across": 6.0})())
+    else:  # scene steps on their own model may end early (at rest), never past the plan
+        assert 20 <= s["steps"] <= s["planned_steps"]
     # a load suddenly applied to a block at rest: Verlet's start-up error is ~1 % of the tiny
     # energies of the first steps, then falls below 1e-3
     assert s["energy_closure_rel_error"] < 2e-2
