@@ -12,7 +12,8 @@ coupled field (kind ``"freeze"``) puts such elements to sleep and the backends t
   contact reaction ``F_contact / m`` (as for any fixed element);
 * **awake again**: an asleep element whose unbalanced acceleration
   ``|F_contact/m + g + F_load/m|`` exceeds ``a_wake`` (default ``2 a_sleep``; something
-  pushes it: an impact, a neighbour that moved away). Its degrees of freedom are freed (velocity zero).
+  pushes it: an impact, a neighbour that moved away). Its degrees of freedom are freed
+  (velocity zero).
 
 Every coupling sorts the elements at rest (asleep, or fixed with zero velocity) into
 **border** ones, that have a neighbour in their row (contacts and near neighbours within the
@@ -148,44 +149,58 @@ class FreezeField(CoupledField):
 
     # ------------------------------------------------------------------ the work
     def _update(self, sim) -> None:
-        from geodem.core.engine import _refresh_acceleration
-
         st = sim.state
         g = np.asarray(st.gravity, float)[:st.dim]
         speed2 = (st.v * st.v).sum(axis=1)
-        awake = ~self.asleep
-        acc2 = (st.a * st.a).sum(axis=1)  # free: the net acceleration
-        calm = self.may_sleep & awake & (speed2 < self.v_sleep ** 2) & \
+        acc2 = (st.a * st.a).sum(axis=1)  # free: the net acceleration; asleep: F_contact/m
+        calm = self.may_sleep & ~self.asleep & (speed2 < self.v_sleep ** 2) & \
             (acc2 < self.a_sleep_i ** 2)
         self.calm = np.where(calm, self.calm + 1, 0).astype(np.int32)
-        fall = calm & (self.calm >= self.patience)
-        # asleep elements are fixed: a holds the contact reaction F/m
-        net = st.a + g[None, :] + st.fload / st.m[:, None]
-        wake = self.asleep & ((net * net).sum(axis=1) > self.a_wake_i ** 2)
-        if fall.any() or wake.any():
-            snap = {k: getattr(st, k).copy() for k in ("free", "v", "fload", "eta")}
-            # books: kinetic energy of a sleeper -> heat; gravity energy leaving/entering the
-            # engine's sum over free DOFs -> external work (see the module doc)
-            pe = -(st.m[:, None] * st.x * g[None, :] * (self.free0 != 0.0)).sum(axis=1)
-            ke = 0.5 * st.m * (st.v * st.v * (st.free != 0.0)).sum(axis=1)
-            st.q_visc[fall] += ke[fall]
-            st.w_ext[fall] -= pe[fall]
-            st.w_ext[wake] += pe[wake]
-            st.v[fall] = 0.0
-            st.free[fall] = 0.0
-            st.free[wake] = self.free0[wake]
-            self.asleep[fall] = True
-            self.asleep[wake] = False
-            self.calm[wake] = 0
-            _refresh_acceleration(st, snap)
-            self.stats["fell_asleep"] += int(fall.sum())
-            self.stats["woke"] += int(wake.sum())
+        fall = np.flatnonzero(calm & (self.calm >= self.patience))
+        sl = np.flatnonzero(self.asleep)
+        net = st.a[sl] + g[None, :] + st.fload[sl] / st.m[sl, None]
+        wake = sl[(net * net).sum(axis=1) > self.a_wake_i[sl] ** 2]
+        if fall.size:
+            self._fall_asleep(st, fall, g)
+        if wake.size:
+            self._wake_up(st, wake, g)
         self._classify(st, sim)
         n = st.n
         self.stats["max_asleep"] = max(self.stats["max_asleep"], int(self.asleep.sum()))
         self.stats["max_deep"] = max(self.stats["max_deep"], self.n_deep)
         self.stats["deep_element_steps"] += self.n_deep * self.every
         self.stats["element_steps"] += n * self.every
+
+    def _gravity_energy(self, st, idx, g):
+        """``-m g.x`` over the originally free DOFs of elements ``idx`` [J]."""
+        return -(st.m[idx, None] * st.x[idx] * g[None, :] * (self.free0[idx] != 0.0)).sum(axis=1)
+
+    def _fall_asleep(self, st, idx, g) -> None:
+        # books: kinetic energy -> heat; gravity energy leaves the engine's sum over free DOFs
+        # -> external work (module doc). The stored acceleration of each DOF being fixed
+        # becomes the contact reaction F/m = a - g - F_load/m + eta v/m (Simulation.change)
+        m = st.m[idx, None]
+        fr = st.free[idx] != 0.0
+        v = st.v[idx]
+        st.q_visc[idx] += 0.5 * st.m[idx] * (v * v * fr).sum(axis=1)
+        st.w_ext[idx] -= self._gravity_energy(st, idx, g)
+        react = st.a[idx] - g[None, :] - st.fload[idx] / m + st.eta[idx, None] * v / m
+        st.a[idx] = np.where(fr, react, st.a[idx])
+        st.v[idx] = 0.0
+        st.free[idx] = 0.0
+        self.asleep[idx] = True
+        self.stats["fell_asleep"] += int(idx.size)
+
+    def _wake_up(self, st, idx, g) -> None:
+        # the DOFs freed again start at rest: a = (F_contact + m g + F_load) / m
+        m = st.m[idx, None]
+        fr = self.free0[idx] != 0.0
+        st.a[idx] = np.where(fr, st.a[idx] + g[None, :] + st.fload[idx] / m, st.a[idx])
+        st.free[idx] = self.free0[idx]
+        st.w_ext[idx] += self._gravity_energy(st, idx, g)
+        self.asleep[idx] = False
+        self.calm[idx] = 0
+        self.stats["woke"] += int(idx.size)
 
     def _classify(self, st, sim) -> None:
         """Deep = at rest with every row neighbour at rest; the backend steps the others."""

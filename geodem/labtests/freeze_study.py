@@ -6,7 +6,7 @@ Two scenes, each run with and without the ``freeze`` field:
   rest on a fixed base, light damping (2 % of the standard damping), a heavy ball dropped on
   its left end at 2 m/s. Most of the pile never feels the impact: the far field sleeps.
 * **landslide**: ``workflows/landslide.yaml`` (ground damping 0.05 of critical) with
-  ``steps.slide.freeze`` on and off.
+  ``steps.slide.freeze`` on and off, as shipped and on a ground 50 m deep (more far field).
 
 Reported per scene: wall time of the stepping, skipped fraction of element-steps, speed-up,
 and the accuracy cost (pile: largest position difference of any element and of the ball, in
@@ -90,24 +90,36 @@ LANDSLIDE_KEYS = ("runout_m", "travel_angle_deg", "max_velocity", "com_ratio",
                   "deposit_volume_m3", "stopped_by")
 
 
-def landslide_case(out_dir, workflow="workflows/landslide.yaml") -> dict:
+LANDSLIDE_SCENES = {
+    # the workflow as shipped: ground 10 m deep under the valley floor
+    "landslide": {"sets": [], "freeze": "steps.slide.freeze={}"},
+    # the same slope on a ground 50 m deep: more far field; sleepers at 0.01 m/s
+    "landslide, deep ground": {"sets": ["model.base_depth=50"],
+                               "freeze": "steps.slide.freeze={v_sleep: 0.01, patience: 5}"},
+}
+
+
+def landslide_case(out_dir, scene="landslide", workflow="workflows/landslide.yaml") -> dict:
     from geodem.workflow import run_workflow
 
-    base = ["steps.slide.ground_damping_ratio=0.05"]
-    runs = {"off": base, "on": base + ["steps.slide.freeze={}"],
+    spec = LANDSLIDE_SCENES[scene]
+    base = list(spec["sets"])
+    runs = {"off": base, "on": base + [spec["freeze"]],
             "dt_0.995": base + ["simulation.dt_fraction=0.0199"]}
     res = {}
+    tag = scene.replace(", ", "_").replace(" ", "_")
     for name, sets in runs.items():
-        code, s = run_workflow(workflow, Path(out_dir) / f"landslide_{name}", sets=sets,
+        code, s = run_workflow(workflow, Path(out_dir) / f"{tag}_{name}", sets=sets,
                                echo=False, progress=False, overwrite=True)
         if code != 0:
-            raise RuntimeError(f"landslide run {name!r} failed: {s.get('error')}")
+            raise RuntimeError(f"{scene} run {name!r} failed: {s.get('error')}")
         r = s["results"]["slide"]
         res[name] = {k: s[k] for k in LANDSLIDE_KEYS}
         res[name]["runout_wall_s"] = r["runout_wall_s"]
+        res[name]["elements"] = r["elements"]
         res[name]["skipped_fraction"] = (r.get("freeze") or {}).get("skipped_fraction", 0.0)
     res["speedup"] = res["off"]["runout_wall_s"] / res["on"]["runout_wall_s"]
-    return {"scene": "landslide", **res}
+    return {"scene": scene, "freeze": spec["freeze"], **res}
 
 
 def freeze_study(out_dir, landslide=True, progress=None) -> dict:
@@ -118,9 +130,10 @@ def freeze_study(out_dir, landslide=True, progress=None) -> dict:
     if progress:
         progress(rec["pile"])
     if landslide:
-        rec["landslide"] = landslide_case(out)
-        if progress:
-            progress(rec["landslide"])
+        for scene in LANDSLIDE_SCENES:
+            rec[scene] = landslide_case(out, scene)
+            if progress:
+                progress(rec[scene])
     (out / "freeze_study.json").write_text(json.dumps(rec, indent=1))
     (out / "freeze_study.md").write_text(markdown(rec))
     return rec
@@ -133,11 +146,13 @@ def markdown(rec) -> str:
              f"| grain pile | {p['elements']} | {p['wall_s_off']:.2f} | {p['wall_s_on']:.2f} | "
              f"{p['speedup']:.2f} | {p['skipped_fraction']:.1%} | largest position error "
              f"{p['max_position_error_d']:.2g} d, ball {p['ball_position_error_d']:.2g} d |"]
-    if "landslide" in rec:
-        ls = rec["landslide"]
+    for scene in LANDSLIDE_SCENES:
+        if scene not in rec:
+            continue
+        ls = rec[scene]
         acc = ", ".join(f"{k} {ls['on'][k]:.4g} / {ls['off'][k]:.4g} / {ls['dt_0.995'][k]:.4g}"
                         for k in LANDSLIDE_KEYS[:4])
-        lines.append(f"| landslide | | {ls['off']['runout_wall_s']:.2f} | "
+        lines.append(f"| {scene} | {ls['off']['elements']:,} | {ls['off']['runout_wall_s']:.2f} | "
                      f"{ls['on']['runout_wall_s']:.2f} | {ls['speedup']:.2f} | "
                      f"{ls['on']['skipped_fraction']:.1%} | on / off / off at 0.995 dt: {acc} |")
     return "\n".join(lines) + "\n"
@@ -149,7 +164,8 @@ def describe(rec) -> str:
                 f"{rec['wall_s_on']:.2f} s (x{rec['speedup']:.2f}), "
                 f"{rec['skipped_fraction']:.0%} of element-steps skipped, largest position "
                 f"error {rec['max_position_error_d']:.2g} grain diameters")
-    return (f"landslide: {rec['off']['runout_wall_s']:.1f} s -> {rec['on']['runout_wall_s']:.1f} s "
-            f"(x{rec['speedup']:.2f}), {rec['on']['skipped_fraction']:.0%} skipped; runout "
+    return (f"{rec['scene']}: {rec['off']['runout_wall_s']:.1f} s -> "
+            f"{rec['on']['runout_wall_s']:.1f} s (x{rec['speedup']:.2f}), "
+            f"{rec['on']['skipped_fraction']:.0%} skipped; runout "
             f"{rec['on']['runout_m']:.4g} m with freezing, {rec['off']['runout_m']:.4g} m "
             f"without, {rec['dt_0.995']['runout_m']:.4g} m without at a 0.5 % smaller step")
