@@ -81,7 +81,7 @@ from pydantic import PrivateAttr
 from geodem.workflow.models import BuildError, BuiltModel, element_params, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, register_model, \
     register_step
-from geodem.workflow.animation import save_gif
+from geodem.workflow.animation import figure_rgb, save_gif
 
 HISTORY = "collapse_history.csv"
 PROGRESS = "collapse.json"
@@ -832,8 +832,7 @@ def write_gif(path, frames, c, res, d):
                      fontsize=8)
         ax.set_yticks([])
         fig.tight_layout()
-        fig.canvas.draw()
-        return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+        return figure_rgb(fig)
 
     images = [render(z) for z in data]
     plt.close(fig)

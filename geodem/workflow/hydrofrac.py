@@ -77,7 +77,7 @@ from geodem.workflow.labtests import material_problems
 from geodem.workflow.models import BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, Strict, StepBase, register_model, \
     register_step
-from geodem.workflow.animation import gif_writer_missing, save_gif
+from geodem.workflow.animation import figure_rgb, gif_writer_missing, save_gif
 
 CURVE = "hydrofrac_curve.csv"
 COLUMNS = ("step", "time", "injection_pressure", "cracks_total", "cracks_tensile",
@@ -895,13 +895,10 @@ def write_gif(path, frames, centre, R, d, ref):
     data = [np.load(f) for f in frames]
     vmax = max(float(z["p_inj"]) for z in data) / 1e6 or 1.0
     fig, ax = plt.subplots(figsize=(4.2, 4.2))
-    images = []
-
     def render(z):
         ax.clear()
         _draw_frame(ax, z, centre, R, d, ref, vmax)
-        fig.canvas.draw()
-        return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+        return figure_rgb(fig)
 
     images = [render(z) for z in data]
     plt.close(fig)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from geodem.workflow.animation import save_gif
+from geodem.workflow.animation import figure_rgb, save_gif
 
 
 def _plt():
@@ -200,7 +200,6 @@ def animation(path, dim, ref, r, slide, frames, n, info):
         ax.clear()
         _view(ax, dim, ref, r, slide, z["x"].astype(float), _speed(z), info, vmax,
               f"t = {float(z['time']):.1f} s")
-        fig.canvas.draw()
-        images.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
+        images.append(figure_rgb(fig))
     plt.close(fig)
     return save_gif(path, images, fps=8)

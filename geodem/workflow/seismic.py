@@ -82,7 +82,7 @@ from geodem.fields import CoupledField, register_field
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, register_model, \
     register_step
-from geodem.workflow.animation import save_gif
+from geodem.workflow.animation import figure_rgb, save_gif
 
 SQRT3 = math.sqrt(3.0)
 FRAMES_DIR = "seismic_frames"
@@ -1028,8 +1028,7 @@ def write_gif(path, frames, d, vmax):
     def render(f):
         ax.clear()
         _speed_map(ax, np.load(f), d, vmax)
-        fig.canvas.draw()
-        return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+        return figure_rgb(fig)
 
     images = [render(f) for f in frames]
     plt.close(fig)

@@ -74,7 +74,7 @@ from geodem.workflow.labtests import material_problems, specimen_material
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, Strict, register_model, \
     register_step
-from geodem.workflow.animation import save_gif
+from geodem.workflow.animation import figure_rgb, save_gif
 
 CURVE = "tbm_forces.csv"
 COLUMNS = ("step", "time", "travel", "normal_force", "rolling_force", "side_force",
@@ -995,8 +995,7 @@ def write_gif(path, frames):
     def render(f):
         ax.clear()
         _draw(ax, np.load(f))
-        fig.canvas.draw()
-        return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+        return figure_rgb(fig)
 
     images = [render(f) for f in frames]
     plt.close(fig)

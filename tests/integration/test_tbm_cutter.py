@@ -189,9 +189,8 @@ def test_default_workflow(default_run):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="default block (d_mean 2.5 mm) is barely bonded "
-                   "(coordination 1.3) and damaged through its height: measured 1.11x; see "
-                   "docs/tbm_cutter.md")
 def test_default_workflow_layered_contrast(default_run):
+    # measured 1.38x (CSM: 3.5x); the barely bonded default block (coordination 1.3) keeps the
+    # contrast weak and sensitive: docs/tbm_cutter.md
     s = default_run
     assert s["normal_force_strong"] > 1.3 * s["normal_force_soft"] > 0
