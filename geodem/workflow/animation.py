@@ -1,6 +1,26 @@
-"""GIF animations of workflow results: one writer for every workflow (imageio if installed,
-else Pillow; skipped with the reason when neither is)."""
+"""Pictures of workflow results shared by every workflow: matplotlib on the Agg backend (None
+when it is missing: pictures are optional), the frames to show, and GIF animations (imageio if
+installed, else Pillow; skipped with the reason when neither is)."""
 from __future__ import annotations
+
+
+def pyplot():
+    """``matplotlib.pyplot`` on the non-interactive Agg backend, or None when not installed."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except Exception:  # noqa: BLE001 - pictures are optional
+        return None
+    return plt
+
+
+def pick_frames(frames, n: int):
+    """Indices of ``n`` frames spread evenly over ``frames`` (first and last included)."""
+    import numpy as np
+
+    return np.unique(np.linspace(0, len(frames) - 1, n).round().astype(int))
 
 
 def gif_writer_missing() -> str | None:

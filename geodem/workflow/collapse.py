@@ -81,7 +81,7 @@ from pydantic import PrivateAttr
 from geodem.workflow.models import BuildError, BuiltModel, element_params, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, register_model, \
     register_step
-from geodem.workflow.animation import figure_rgb, save_gif
+from geodem.workflow.animation import figure_rgb, pyplot, save_gif
 
 HISTORY = "collapse_history.csv"
 PROGRESS = "collapse.json"
@@ -706,16 +706,6 @@ class _Collapse:
 
 
 # ============================================================================ pictures
-def _mpl():
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except Exception:  # noqa: BLE001 - pictures are optional
-        return None
-    return plt
-
 
 def _discs(ax, x, r, y0, colour):
     from matplotlib.collections import EllipseCollection
@@ -738,7 +728,7 @@ def _frame_axes(ax, c, res, d):
 def plot_snapshots(path, x0, r0, x1, r1, c, res, d):
     """Initial column and final deposit of one column, with the measured front and the front of
     the reference law."""
-    plt = _mpl()
+    plt = pyplot()
     if plt is None:
         return None
     xmax = max(res["runout_length"], c["L0"] * (1.0 + lube_2005(c["aspect_ratio"]))) + 2 * d
@@ -766,7 +756,7 @@ def plot_snapshots(path, x0, r0, x1, r1, c, res, d):
 
 def plot_runout(path, per):
     """Normalised runout against aspect ratio with the law of Lube et al. (2005)."""
-    plt = _mpl()
+    plt = pyplot()
     if plt is None:
         return None
     a = np.array([v["aspect_ratio"] for v in per])
@@ -791,7 +781,7 @@ def plot_runout(path, per):
 
 def plot_history(path, rows, cols, tau):
     """Normalised fronts and kinetic energy against time / tau."""
-    plt = _mpl()
+    plt = pyplot()
     if plt is None or not rows:
         return None
     t = np.array([r[1] for r in rows]) / tau
@@ -816,7 +806,7 @@ def plot_history(path, rows, cols, tau):
 
 def write_gif(path, frames, c, res, d):
     """Animation of one collapse (imageio, else matplotlib's PillowWriter)."""
-    plt = _mpl()
+    plt = pyplot()
     if plt is None or not frames:
         return None
     data = [np.load(f) for f in frames]

@@ -77,7 +77,7 @@ from geodem.workflow.labtests import material_problems
 from geodem.workflow.models import BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, Strict, StepBase, register_model, \
     register_step
-from geodem.workflow.animation import figure_rgb, gif_writer_missing, save_gif
+from geodem.workflow.animation import figure_rgb, gif_writer_missing, pick_frames, pyplot, save_gif
 
 CURVE = "hydrofrac_curve.csv"
 COLUMNS = ("step", "time", "injection_pressure", "cracks_total", "cracks_tensile",
@@ -816,25 +816,16 @@ def _draw_frame(ax, z, centre, R, d, ref, vmax, cmap="viridis"):
     return pc
 
 
-def _mpl():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
 
 def plot_pressure_maps(path, frames, n, centre, R, d, ref):
     """Pore-pressure maps (colour: P [MPa]) with the cracks (red, across the broken bonds) at
     ``n`` times spread over the run."""
-    try:
-        plt = _mpl()
-    except Exception:  # noqa: BLE001 - optional
+    plt = pyplot()
+    if plt is None:
         return None
     if not frames:
         return None
-    pick = np.unique(np.linspace(0, len(frames) - 1, n).round().astype(int))
+    pick = pick_frames(frames, n)
     data = [np.load(frames[k]) for k in pick]
     vmax = max(float(z["p_inj"]) for z in data) / 1e6 or 1.0
     cols = len(data) if len(data) <= 4 else 3
@@ -854,9 +845,8 @@ def plot_pressure_maps(path, frames, n, centre, R, d, ref):
 
 def plot_history(path, a, t0, breakdown, hw):
     """Injection pressure and crack count against injection time."""
-    try:
-        plt = _mpl()
-    except Exception:  # noqa: BLE001
+    plt = pyplot()
+    if plt is None:
         return None
     if len(a) == 0:
         return None
@@ -886,9 +876,8 @@ def plot_history(path, a, t0, breakdown, hw):
 def write_gif(path, frames, centre, R, d, ref):
     """Animation of the pore-pressure maps: imageio if installed, else matplotlib's
     PillowWriter; returns None (skipped) when neither can write a GIF."""
-    try:
-        plt = _mpl()
-    except Exception:  # noqa: BLE001
+    plt = pyplot()
+    if plt is None:
         return None
     if not frames:
         return None

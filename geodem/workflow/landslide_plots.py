@@ -6,25 +6,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from geodem.workflow.animation import figure_rgb, save_gif
+from geodem.workflow.animation import figure_rgb, pick_frames, pyplot, save_gif
 
-
-def _plt():
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        return plt
-    except Exception:  # noqa: BLE001 - plots are optional
-        return None
 
 
 def velocity_history(path, a, res):
     """Mean and largest element speed of the slide body, and its mass centre's horizontal
     travel, against the time since the trigger."""
-    plt = _plt()
+    plt = pyplot()
     if plt is None or len(a) == 0:
         return None
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(6.4, 5.6), sharex=True)
@@ -99,7 +88,7 @@ def deposit_map(path, dim, ref, r, slide, x0, x, moved, info, res):
     """Before and after: 2-D, the section with the source (light) and the deposit (red), the
     travel-angle line from the crown top to the deposit tip and the runout; 3-D, the plan view
     of the source and the deposit coloured by the elevation change."""
-    plt = _plt()
+    plt = pyplot()
     if plt is None:
         return None
     if dim == 2:
@@ -156,7 +145,7 @@ def deposit_map(path, dim, ref, r, slide, x0, x, moved, info, res):
 
 
 def _load(frames, n):
-    pick = np.unique(np.linspace(0, len(frames) - 1, n).round().astype(int))
+    pick = pick_frames(frames, n)
     return [np.load(frames[k]) for k in pick]
 
 
@@ -166,7 +155,7 @@ def _speed(z):
 
 def snapshots(path, dim, ref, r, slide, frames, n, info):
     """``n`` panels of the slide body spread over the runout (colour: element speed)."""
-    plt = _plt()
+    plt = pyplot()
     if plt is None or not frames:
         return None
     data = _load(frames, n)
@@ -189,7 +178,7 @@ def snapshots(path, dim, ref, r, slide, frames, n, info):
 
 def animation(path, dim, ref, r, slide, frames, n, info):
     """GIF of the runout (imageio if installed, else Pillow)."""
-    plt = _plt()
+    plt = pyplot()
     if plt is None or not frames:
         return None
     data = _load(frames, n)

@@ -82,7 +82,7 @@ from geodem.fields import CoupledField, register_field
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, register_model, \
     register_step
-from geodem.workflow.animation import figure_rgb, save_gif
+from geodem.workflow.animation import figure_rgb, pick_frames, pyplot, save_gif
 
 SQRT3 = math.sqrt(3.0)
 FRAMES_DIR = "seismic_frames"
@@ -891,14 +891,6 @@ class SeismicWave(StepBase):
 
 
 # ============================================================================ pictures
-def _mpl():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
 
 def _speed_map(ax, z, d, vmax, title=True):
     x = z["x"].astype(float)
@@ -920,13 +912,12 @@ def _speed_map(ax, z, d, vmax, title=True):
 
 def plot_snapshots(path, frames, n, d, vmax):
     """Maps of the particle speed |v| at ``n`` times spread over the run."""
-    try:
-        plt = _mpl()
-    except Exception:  # noqa: BLE001 - optional
+    plt = pyplot()
+    if plt is None:
         return None
     if not frames:
         return None
-    pick = np.unique(np.linspace(0, len(frames) - 1, n).round().astype(int))
+    pick = pick_frames(frames, n)
     data = [np.load(frames[k]) for k in pick]
     x = data[0]["x"]
     aspect = float(np.ptp(x[:, 1]) / max(np.ptp(x[:, 0]), 1e-300))
@@ -947,9 +938,8 @@ def plot_snapshots(path, frames, n, d, vmax):
 
 def plot_surface(path, t, a, xr, amp, info, amp_raw=None):
     """Ground-line record (|a| against x and time) and the amplification along the ground."""
-    try:
-        plt = _mpl()
-    except Exception:  # noqa: BLE001
+    plt = pyplot()
+    if plt is None:
         return None
     if len(t) == 0:
         return None
@@ -982,9 +972,8 @@ def plot_surface(path, t, a, xr, amp, info, amp_raw=None):
 
 def plot_reference(path, ref, pulse):
     """The flat column: vertical velocity traces against height and the arrival-time fit."""
-    try:
-        plt = _mpl()
-    except Exception:  # noqa: BLE001
+    plt = pyplot()
+    if plt is None:
         return None
     t, y, v = ref["t"], ref["y"], ref["v"]
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(9, 4.2), layout="constrained")
@@ -1015,9 +1004,8 @@ def plot_reference(path, ref, pulse):
 def write_gif(path, frames, d, vmax):
     """Animation of the particle-speed maps (imageio, else matplotlib's PillowWriter; None when
     neither can write a GIF)."""
-    try:
-        plt = _mpl()
-    except Exception:  # noqa: BLE001
+    plt = pyplot()
+    if plt is None:
         return None
     if not frames:
         return None

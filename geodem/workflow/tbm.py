@@ -74,7 +74,7 @@ from geodem.workflow.labtests import material_problems, specimen_material
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, Strict, register_model, \
     register_step
-from geodem.workflow.animation import figure_rgb, save_gif
+from geodem.workflow.animation import figure_rgb, pick_frames, pyplot, save_gif
 
 CURVE = "tbm_forces.csv"
 COLUMNS = ("step", "time", "travel", "normal_force", "rolling_force", "side_force",
@@ -855,14 +855,6 @@ def _write_rows(path, rows):
 
 
 # ============================================================================ pictures
-def _mpl():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
 
 def _draw(ax, z):
     from matplotlib.collections import EllipseCollection, LineCollection
@@ -902,13 +894,12 @@ def _draw(ax, z):
 def plot_snapshots(path, frames, n):
     """``n`` snapshots over the run: rock coloured by layer (pink soft, grey-blue strong), the
     cutter's rim elements (dark), broken bonds (red, drawn across each bond)."""
-    try:
-        plt = _mpl()
-    except Exception:  # noqa: BLE001 - optional
+    plt = pyplot()
+    if plt is None:
         return None
     if not frames:
         return None
-    pick = np.unique(np.linspace(0, len(frames) - 1, n).round().astype(int))
+    pick = pick_frames(frames, n)
     fig, axes = plt.subplots(len(pick), 1, figsize=(7.0, 1.9 * len(pick) + 0.3), squeeze=False)
     for ax, k in zip(axes[:, 0], pick):
         _draw(ax, np.load(frames[k]))
@@ -921,9 +912,8 @@ def plot_snapshots(path, frames, n):
 def plot_forces(path, a, res, window):
     """Normal, rolling (and side) forces against the travel, with the CSM estimates and the
     full-engagement window (dotted lines)."""
-    try:
-        plt = _mpl()
-    except Exception:  # noqa: BLE001
+    plt = pyplot()
+    if plt is None:
         return None
     if len(a) == 0:
         return None
@@ -955,9 +945,8 @@ def plot_forces(path, a, res, window):
 
 def plot_energy(path, a, res):
     """Cutting work, heat and broken bonds (by material) against the travel."""
-    try:
-        plt = _mpl()
-    except Exception:  # noqa: BLE001
+    plt = pyplot()
+    if plt is None:
         return None
     if len(a) == 0:
         return None
@@ -984,9 +973,8 @@ def plot_energy(path, a, res):
 
 def write_gif(path, frames):
     """Animation of the snapshots (imageio, else matplotlib's PillowWriter)."""
-    try:
-        plt = _mpl()
-    except Exception:  # noqa: BLE001
+    plt = pyplot()
+    if plt is None:
         return None
     if not frames:
         return None

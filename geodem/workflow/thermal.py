@@ -40,6 +40,7 @@ from typing import Annotated, Literal, Optional
 import numpy as np
 from pydantic import Field, model_validator
 
+from geodem.workflow.animation import pyplot
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
     DOF_NAMES,
@@ -76,16 +77,6 @@ def _append_csv(path, row):
         csv.writer(f).writerow(row)
 
 
-def _mpl():
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        return plt
-    except Exception:  # noqa: BLE001 - plots are optional
-        return None
 
 
 def plane_axes(x) -> list:
@@ -321,7 +312,7 @@ class Heat(StepBase):
 
 
 def _plot_heat(path, a, header, probes, xy, r, T, cxy, names, vmin, vmax):
-    plt = _mpl()
+    plt = pyplot()
     if plt is None:
         return None
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.6), gridspec_kw={"width_ratios": [1, 1.1]})
@@ -452,7 +443,7 @@ class ThermalRod(Heat):
 
 
 def _plot_rod(path, s, T, xs, exact, curves, t, rel, fo):
-    plt = _mpl()
+    plt = pyplot()
     if plt is None:
         return None
     fig, ax = plt.subplots(figsize=(6.4, 4.2))

@@ -90,6 +90,7 @@ from typing import Literal, Optional
 
 import numpy as np
 
+from geodem.workflow.animation import pyplot
 from geodem.workflow.labtests import (SpecimenMaterial, box_size_problems, material_problems,
                                       specimen_material)
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
@@ -1068,19 +1069,10 @@ class _Run:
 
 
 # ============================================================================ pictures
-def _mpl():
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except Exception:  # noqa: BLE001 - the plot is optional
-        return None
-    return plt
 
 
 def _plot_curves(path, rows):
-    plt = _mpl()
+    plt = pyplot()
     if plt is None:
         return None
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.5))
@@ -1103,7 +1095,7 @@ def _plot_curves(path, rows):
 
 
 def _plot_mohr(path, s3, s1, fit):
-    plt = _mpl()
+    plt = pyplot()
     if plt is None:
         return None
     fig, ax = plt.subplots(figsize=(7, 4.5))
@@ -1133,7 +1125,7 @@ def _plot_mohr(path, s3, s1, fit):
 
 
 def _plot_cracks(path, x, spec, pos, types, s3):
-    plt = _mpl()
+    plt = pyplot()
     if plt is None:
         return None
     fig, ax = plt.subplots(figsize=(5, 6))
