@@ -33,8 +33,11 @@
     1957; non-penetrating fluid, elastic plate, tension positive T), with ``T`` =
     ``tensile_strength`` if given, else the material's measured tensile strength from its
     library calibration record (``materials/NAME.yaml``, ``calibrated.2d.measured.Tu``: the
-    Brazilian strength of the calibration discs), else its laboratory ``Tu``
-    (``tensile_strength_source`` says which);
+    Brazilian strength of the calibration discs), else its laboratory ``Tu``; with
+    ``tensile_strength_from: direct_tension``, the direct tension strength of a strip of the
+    plate's own packing (:func:`strip_tensile_strength`); ``tensile_strength_source`` says
+    which. ``fluid_penetration_at_breakdown`` [m] (:func:`penetration_depth`) tells whether
+    the non-penetrating formula applies (docs/hydraulic_fracturing.md: it does);
   - ``crack_branches``, ``crack_angles_deg``: the crack arms from the borehole: the cracks
     (midpoints of broken bonds in the built plate) connected to the borehole (a chain of
     cracks less than 2.5 d_mean apart reaching within 2.5 d_mean of the wall), beyond
@@ -82,7 +85,7 @@ from geodem.workflow.animation import figure_rgb, gif_writer_missing, pick_frame
 CURVE = "hydrofrac_curve.csv"
 COLUMNS = ("step", "time", "injection_pressure", "cracks_total", "cracks_tensile",
            "cracks_shear", "cracks_connected", "max_crack_radius", "injected_mass",
-           "mass_balance_rel_error")
+           "mass_balance_rel_error", "penetration_depth")
 FRAMES_DIR = "hf_frames"
 CRACK_LINK = 2.5  # x d_mean: cracks closer than this belong to one chain (an arm)
 
@@ -259,6 +262,74 @@ def crack_arms(xy, centre, r_min, gap_deg=30.0, min_cracks=3):
     return sorted(arms, key=lambda d: d["angle_deg"])
 
 
+def penetration_depth(r, P, p_inj, r_wall, width, frac=0.1):
+    """How far the injected fluid has entered the rock [m]: the outer edge, measured from
+    ``r_wall``, of the last of the consecutive rings (``width`` wide, from ``r_wall`` out) whose
+    pores (distances ``r`` of their centroids from the borehole centre, pressures ``P``) hold a
+    mean pressure of at least ``frac`` x ``p_inj``; 0 when the first ring holds less (or
+    ``p_inj`` <= 0)."""
+    r = np.asarray(r, float)
+    P = np.asarray(P, float)
+    if p_inj <= 0 or width <= 0:
+        return 0.0
+    k = 0
+    while True:
+        sel = (r >= r_wall + k * width) & (r < r_wall + (k + 1) * width)
+        if not sel.any() or P[sel].mean() < frac * p_inj:
+            return k * width
+        k += 1
+
+
+def strip_tensile_strength(ctx):
+    """``(T [Pa], source)``: the direct tension strength of a strip of the plate's packing,
+    ``10 x 20 d_mean`` (the geometry of workflows/direct_tension.yaml), built like the plate
+    (same material, d_mean, distri_rate and seed) and pulled by the ``direct_tension`` step
+    (strain rate 0.05 1/s, to 0.5 x the peak force); the run lies in ``tensile_test/`` of the
+    run folder and is reused when its summary is there (a resumed run)."""
+    import json
+    from pathlib import Path
+
+    import yaml
+
+    from geodem.workflow import run_workflow
+
+    cfg = ctx.cfg
+    m = cfg.model
+    d = float(m.d_mean)
+    seed = m.seed if m.seed is not None else int(cfg.metadata.seed or 0)
+    folder = ctx.out_dir / "tensile_test"
+    done = folder / "out" / "summary.json"
+    src = (f"direct tension of a {10 * d:g} x {20 * d:g} m strip of the plate's packing "
+           f"(d_mean {d:g} m, distri_rate {m.distri_rate:g}, seed {seed}): tensile_test/")
+    if not done.exists():
+        mat = cfg.materials[m.material].model_dump(mode="json", exclude_none=True)
+        base = Path(ctx.runner.prep.path).resolve().parent
+        for key in ("file", "library"):
+            v = mat.get(key)
+            if isinstance(v, str) and v.endswith((".yaml", ".yml")) and \
+                    not Path(v).is_absolute():
+                mat[key] = str(base / v)
+        doc = {"metadata": {"name": "hydrofrac_tensile_test", "seed": seed,
+                            "description": "direct tension of a strip of the plate's packing"},
+               "model": {"type": "specimen", "dim": 2, "size": [10 * d, 20 * d], "d_mean": d,
+                         "distri_rate": float(m.distri_rate), "material": "rock"},
+               "materials": {"rock": mat},
+               "steps": [{"kind": "direct_tension", "name": "tension", "strain_rate": 0.05,
+                          "max_strain": 0.0005, "drop": 0.5}],
+               "outputs": {"observables": {"every": 1000}}}
+        folder.mkdir(parents=True, exist_ok=True)
+        wf = folder / "workflow.yaml"
+        wf.write_text(yaml.safe_dump(doc, sort_keys=False))
+        ctx.log("tensile strength: direct tension of a strip of the plate's packing "
+                f"({wf.relative_to(ctx.out_dir)})")
+        code, summ = run_workflow(wf, folder / "out", overwrite=True, echo=False,
+                                  progress=False)
+        if code != 0 or summ.get("status") != "ok":
+            return None, f"{src} failed ({summ.get('status')}: {summ.get('error')})"
+    T = json.loads(done.read_text()).get("tensile_strength")
+    return (float(T) if T else None), src
+
+
 def burst_samples(p, cracks, n, window):
     """Samples ending a burst: at least ``n`` more cracks than at the last sample whose
     pressure is ``window`` [Pa] or more below (the start counts as 0 cracks at p[0])."""
@@ -363,8 +434,15 @@ class HydraulicFracturing(StepBase):
                                               "standard damping eta_c / N (0: none)")
     fluid: FluidSpec = F(default_factory=FluidSpec, description="The pore fluid")
     tensile_strength: Optional[float] = F(
-        None, unit="Pa", gt=0, description="T of Hubbert-Willis (default: the material's "
-                                           "calibration record, see docs)")
+        None, unit="Pa", gt=0, description="T of Hubbert-Willis (default: see "
+                                           "tensile_strength_from)")
+    tensile_strength_from: Literal["calibration", "direct_tension"] = F(
+        "calibration", description="Where T comes from when tensile_strength is not given: "
+                                   "calibration (the material's calibration record: the nominal "
+                                   "Brazilian strength) or direct_tension (a direct tension "
+                                   "test of a 10 x 20 d_mean strip of the plate's packing: same "
+                                   "material, d_mean, distri_rate and seed, run in "
+                                   "tensile_test/)")
     samples: Int = F(200, ge=2, le=100000, description="Samples over the duration")
     burst_cracks: Int = F(5, ge=1, description="Bonds broken within burst_window of "
                                                "injection pressure that make the breakdown "
@@ -513,9 +591,13 @@ class HydraulicFracturing(StepBase):
         log, xy = self._crack_xy(ctx, ref)
         conn = connected_cracks(xy, centre, R, CRACK_LINK * d)
         reach = float(np.linalg.norm(xy[conn] - centre, axis=1).max()) if conn.size else 0.0
-        return [int(s.step), float(s.time), field.bc_pressure("injection"), len(log),
+        p_inj = field.bc_pressure("injection")
+        cent = s.x[field.cells].mean(axis=1)
+        pen = penetration_depth(np.linalg.norm(cent - centre, axis=1), field.update_pressure(),
+                                p_inj, R, 0.5 * d)
+        return [int(s.step), float(s.time), p_inj, len(log),
                 int((log["type"] == 1).sum()), int((log["type"] == 2).sum()), int(conn.size),
-                reach, field.injected, field.mass_balance_error()]
+                reach, field.injected, field.mass_balance_error(), pen]
 
     def _frame(self, fdir, ctx, field, ref, k):
         s = ctx.state
@@ -532,10 +614,13 @@ class HydraulicFracturing(StepBase):
             if len(a) else np.zeros(0, int)
         first = np.flatnonzero(a[:, 3] > 0) if len(a) else np.zeros(0, int)
         breakdown = float(a[burst[0], 2]) if burst.size else None
-        T, src = (self.tensile_strength, "tensile_strength of the step") \
-            if self.tensile_strength is not None else (
-                ctx.model.info.get("material_tensile_strength"),
-                ctx.model.info.get("material_tensile_strength_source"))
+        if self.tensile_strength is not None:
+            T, src = self.tensile_strength, "tensile_strength of the step"
+        elif self.tensile_strength_from == "direct_tension":
+            T, src = strip_tensile_strength(ctx)
+        else:
+            T, src = (ctx.model.info.get("material_tensile_strength"),
+                      ctx.model.info.get("material_tensile_strength_source"))
         sH, sh = (self.sigma_H, self.sigma_h) if self.boundary == "stress" else (0.0, 0.0)
         hw = hubbert_willis(sH, sh, T, self.p0) if T is not None else None
         log, xy = self._crack_xy(ctx, ref)
@@ -548,6 +633,7 @@ class HydraulicFracturing(StepBase):
             if burst.size else None,
             "first_crack_pressure": float(a[first[0], 2]) if first.size else None,
             "hubbert_willis_pressure": hw,
+            "fluid_penetration_at_breakdown": float(a[burst[0], 10]) if burst.size else None,
             "breakdown_over_hubbert_willis": breakdown / hw if breakdown and hw else None,
             "tensile_strength": T, "tensile_strength_source": src,
             "sigma_H": sH, "sigma_h": sh, "p0": self.p0, "boundary": self.boundary,
@@ -895,6 +981,6 @@ def write_gif(path, frames, centre, R, d, ref):
 
 
 __all__ = ["HydrofracPlate", "HydraulicFracturing", "FluidSpec", "PoreFlow", "PoreFluidSpec",
-           "hubbert_willis", "burst_samples",
+           "hubbert_willis", "burst_samples", "penetration_depth", "strip_tensile_strength",
            "crack_arms", "connected_cracks", "axis_misfit_deg", "boundary_tractions",
            "material_tensile_strength"]

@@ -7,9 +7,11 @@ workflows at their default size against the targets of VALIDATION.md:
 * isotropic (four fixed boundaries): 2-4 crack arms (measured: 4 arms at 107, 217, 274, 354
   deg); breakdown within 30 % of Hubbert-Willis ``P_b = T`` with T the calibrated
   (Brazilian) tensile strength of materials/sandstone.yaml, 5.83 MPa: NOT met, measured
-  2.25 MPa (0.39 x), kept as a strict xfail (see docs/hydraulic_fracturing.md: the 2-D
-  bonded packing has no single tensile strength: direct tension of the same material gives
-  0.65 MPa, the Brazilian nominal 5.83 MPa, the borehole bursts in between);
+  2.25 MPa (0.39 x), kept as a strict xfail; with T from direct tension of a strip of the
+  plate's own packing (``tensile_strength_from: direct_tension``, 0.65 MPa) it is 3.5 x the
+  other way, also a strict xfail (docs/hydraulic_fracturing.md: the breakdown falls with
+  hole size / d_mean, and a fit of 2-8 d_mean holes extrapolates to 1.35 x the direct-tension
+  strength for large holes);
 * confined (sigma_H = 6 MPa along x, sigma_h = 3 MPa): the dominant arm within 15 deg of
   sigma_H (measured 7.9 deg), breakdown within 30 % of ``3 sigma_h - sigma_H + T`` = 8.83 MPa
   (measured 10.23 MPa, +16 %);
@@ -30,6 +32,7 @@ from geodem.workflow.hydrofrac import (
     connected_cracks,
     crack_arms,
     hubbert_willis,
+    penetration_depth,
 )
 from geodem.workflow.schema import load_builtins
 
@@ -85,6 +88,19 @@ def test_burst_is_the_first_window_with_enough_new_cracks():
     cracks = np.array([0, 0, 1, 1, 2, 3, 9, 12, 12, 12])
     b = burst_samples(p, cracks, 5, 0.25e6)
     assert b[0] == 6  # 9 cracks at 0.6 MPa, 3 at 0.35 MPa and below
+
+
+def test_penetration_depth_counts_the_wetted_rings():
+    # pores at r = 1.0..1.9 cm from the centre (wall at 1 cm), rings 0.25 cm wide
+    r = np.repeat(0.01 + 0.0025 * np.arange(4) + 0.001, 3)
+    P = np.repeat([0.9, 0.4, 0.15, 0.02], 3) * 2e6
+    assert penetration_depth(r, P, 2e6, 0.01, 0.0025) == pytest.approx(0.0075)
+    assert penetration_depth(r, P, 2e6, 0.01, 0.0025, frac=0.5) == pytest.approx(0.0025)
+    assert penetration_depth(r, 0 * P, 2e6, 0.01, 0.0025) == 0.0
+    assert penetration_depth(r, P, 0.0, 0.01, 0.0025) == 0.0
+    # a wetted ring beyond a dry one does not count (the front is continuous from the wall)
+    P2 = np.repeat([0.9, 0.0, 0.9, 0.9], 3) * 2e6
+    assert penetration_depth(r, P2, 2e6, 0.01, 0.0025) == pytest.approx(0.0025)
 
 
 def test_axis_misfit():
@@ -174,12 +190,52 @@ def test_isotropic_plate_grows_two_to_four_arms(isotropic):
 @pytest.mark.slow
 @pytest.mark.validation
 @pytest.mark.xfail(strict=True, reason="measured breakdown 2.25 MPa = 0.39 x Hubbert-Willis "
-                                       "T = 5.83 MPa (calibrated Brazilian Tu); direct tension "
-                                       "of the same material gives 0.65 MPa: see "
+                                       "T = 5.83 MPa (calibrated nominal Brazilian Tu); the "
+                                       "plate's own direct-tension T is 0.65 MPa (3.5 x the "
+                                       "other way): no honest T meets 30 %, see "
                                        "docs/hydraulic_fracturing.md")
 def test_isotropic_breakdown_within_30_percent_of_hubbert_willis(isotropic):
     assert isotropic["breakdown_pressure"] == pytest.approx(
         isotropic["hubbert_willis_pressure"], rel=0.30)
+
+
+@pytest.fixture(scope="module")
+def isotropic_direct(tmp_path_factory):
+    out = tmp_path_factory.mktemp("hf_dt") / "run"
+    code, s = run_workflow(HF, out, sets=["steps.injection.tensile_strength_from=direct_tension",
+                                          "steps.injection.gif=false"],
+                           echo=False, progress=False)
+    assert code == 0 and s["status"] == "ok", s.get("error")
+    return s, out
+
+
+@pytest.mark.slow
+def test_direct_tension_strength_of_the_plate_packing(isotropic_direct):
+    s, out = isotropic_direct
+    r = s["results"]["injection"]
+    sub = json.loads((out / "tensile_test" / "out" / "summary.json").read_text())
+    # T is the strip's F_peak / A (A = width x thickness = 10 d_mean x d_mean)
+    res = sub["results"]["tension"]
+    assert res["area"] == pytest.approx(10 * 0.005 * 0.005, rel=0.05)
+    assert s["tensile_strength"] == pytest.approx(res["peak_force"] / res["area"], rel=1e-12)
+    assert 0.5e6 < s["tensile_strength"] < 0.8e6  # measured 0.651 MPa (docs)
+    assert "direct tension" in r["tensile_strength_source"]
+    assert s["hubbert_willis_pressure"] == s["tensile_strength"]  # sigma = 0, p0 = 0
+    # the fluid has not soaked the rock around the hole: the non-penetrating formula applies
+    assert r["fluid_penetration_at_breakdown"] < 0.01  # < hole radius (measured 0.5 a)
+
+
+@pytest.mark.slow
+@pytest.mark.validation
+@pytest.mark.xfail(strict=True, reason="measured breakdown 2.25 MPa = 3.5 x Hubbert-Willis with "
+                                       "T = 0.65 MPa (direct tension of the plate's packing); "
+                                       "the hole-size study extrapolates to 1.35 x for a hole "
+                                       "much larger than the grains: see "
+                                       "docs/hydraulic_fracturing.md")
+def test_isotropic_breakdown_within_30_percent_of_direct_tension_hubbert_willis(
+        isotropic_direct):
+    s, _ = isotropic_direct
+    assert s["breakdown_pressure"] == pytest.approx(s["hubbert_willis_pressure"], rel=0.30)
 
 
 @pytest.mark.slow
