@@ -45,3 +45,35 @@ def one_numba_thread():
     numba.set_num_threads(1)
     yield
     numba.set_num_threads(n)
+
+
+def run_in_cuda_simulator(script: str, *args: str, timeout: int = 600):
+    """Run ``script`` in a fresh Python with numba's CUDA simulator on (the GPU kernels on
+    NumPy arrays), the repository root as ``sys.argv[1]`` and ``args`` after it; returns the
+    JSON its last printed line holds."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", GEODEM_CUDA_SIM="1")
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    p = subprocess.run([sys.executable, "-c", script, root, *args], env=env,
+                       capture_output=True, text=True, timeout=timeout)
+    assert p.returncode == 0, p.stderr[-3000:]
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def step_backends(base, backends, steps):
+    """Step a copy of ``base`` ``steps`` times on each backend (no rebuilds): returns
+    ``{backend: (state, crack log)}`` with the states synchronised to the host."""
+    from geodem.core.engine import Simulation
+
+    out = {}
+    for be in backends:
+        st = base.copy()
+        sim = Simulation(st, backend=be, check_every=10**9)
+        sim.run(steps)
+        sim.sync()
+        out[be] = (st, sim.crack_log())
+    return out

@@ -18,13 +18,19 @@ CUDA simulator runs the same code in CI without a GPU). ``DIM`` is a compile-tim
 from __future__ import annotations
 
 import functools
+import math
 import types
 
 from geodem.core import law
 
 
-def _bodies(DIM, jit_device):
-    """Build the per-element bodies for dimension ``DIM`` with the device-function decorator."""
+def _bodies(DIM, ROT, jit_device):
+    """Build the per-element bodies for dimension ``DIM`` with the device-function decorator.
+
+    ``ROT`` (compile-time): the elements also turn (``geodem.core.state.enable_rotation``); the
+    rotation arrays ``w, wa, dth, rfree, inertia, mr`` are then read and written, otherwise
+    they are placeholders the compiled code never touches.
+    """
     # the law's helpers are plain Python; rebind them to compiled versions for this target
     glb = dict(vars(law))
     for name in law.HELPERS:
@@ -35,6 +41,9 @@ def _bodies(DIM, jit_device):
 
     contact = retarget(law.contact)
     contact_energy = retarget(law.contact_energy)
+    rolling = retarget(law.rolling)
+    series = glb["series"]
+    NR = 1 if DIM == 2 else 3  # rotational DOFs per element
 
     def dof_free(v, a, f, m, eta, dt, ddx):
         # implicit trapezoidal damping; returns new v, new a, viscous heat share
@@ -43,7 +52,19 @@ def _bodies(DIM, jit_device):
 
     dof_free = jit_device(dof_free)
 
-    def move_body(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt):
+    def dof_step(free, v, a, fc, fg, fl, m, eta, dt, ddx):
+        # one degree of freedom after the force pass: a free one moves under the contact force
+        # fc plus gravity fg and load fl (returns v, a, viscous heat, 0); a fixed or kinematic
+        # one keeps v and stores the reaction fc/m, whose work -fc ddx/2 it returns
+        if free != 0.0:
+            vn, an, dq = dof_free(v, a, fc + fg + fl, m, eta, dt, ddx)
+            return vn, an, dq, 0.0
+        return v, fc / m, 0.0, -0.5 * fc * ddx
+
+    dof_step = jit_device(dof_step)
+
+    def move_body(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+                  w, wa, dth, rfree, inertia):
         qv = 0.0
         we = 0.0
         for d in range(DIM):
@@ -56,12 +77,25 @@ def _bodies(DIM, jit_device):
                 we -= 0.5 * m[i] * a[i, d] * ddx
             dx[i, d] = ddx
             x[i, d] += ddx
+        if ROT:
+            # the same Verlet half step for the rotation; damping eta I/m (same decay time)
+            ii = inertia[i]
+            etar = eta[i] * ii / m[i]
+            for d in range(NR):
+                if rfree[i, d] != 0.0:
+                    ddt = dt * w[i, d] + 0.5 * dt * dt * wa[i, d]
+                    qv += 0.5 * etar * w[i, d] * ddt
+                else:
+                    ddt = dt * w[i, d]
+                    we -= 0.5 * ii * wa[i, d] * ddt
+                dth[i, d] = ddt
         q_visc[i] += qv
         w_ext[i] += we
 
     def force_body(i, x, v, a, dx, free, fload, props, m, eta,
                    nbr, cstate, fs, brate, q_visc, q_bn, q_bs, q_f, w_ext,
-                   g0, g1, g2, dt, code_t, code_s, hertz):
+                   g0, g1, g2, dt, code_t, code_s, hertz,
+                   w, wa, dth, rfree, inertia, mr):
         xi0 = x[i, 0]
         xi1 = x[i, 1]
         di0 = dx[i, 0]
@@ -71,7 +105,7 @@ def _bodies(DIM, jit_device):
         if DIM == 3:
             xi2 = x[i, 2]
             di2 = dx[i, 2]
-        # props columns: r, kn, ks, xb, fs0, mu (one cache line per element)
+        # props columns: r, kn, ks, xb, fs0, mu, mu_r (one cache line per element)
         ri = props[i, 0]
         kni = props[i, 1]
         ksi = props[i, 2]
@@ -84,6 +118,9 @@ def _bodies(DIM, jit_device):
         qn = 0.0
         qs = 0.0
         qf = 0.0
+        t0 = 0.0  # torque [N m] (2-D: only t2, about z)
+        t1 = 0.0
+        t2 = 0.0
         for k in range(nbr.shape[1]):
             j = nbr[i, k]
             if j < 0:
@@ -95,10 +132,33 @@ def _bodies(DIM, jit_device):
                 ex = x[j, 2] - xi2
                 ez = dx[j, 2] - di2
                 s2 = fs[i, k, 2]
+            bx = x[j, 0] - xi0
+            by = x[j, 1] - xi1
+            rx = dx[j, 0] - di0
+            ry = dx[j, 1] - di1
+            if ROT:
+                # the law sees the contact point's relative displacement: the rotations
+                # move it by -(R_i dth_i + R_j dth_j) x n (symmetric in i, j: j's row gets
+                # exactly the opposite)
+                inv = 1.0 / math.sqrt(bx * bx + by * by + ex * ex)
+                cnx = bx * inv
+                cny = by * inv
+                cnz = ex * inv
+                rj = props[j, 0]
+                if DIM == 2:
+                    cz = ri * dth[i, 0] + rj * dth[j, 0]
+                    rx = rx + cz * cny
+                    ry = ry - cz * cnx
+                else:
+                    cx = ri * dth[i, 0] + rj * dth[j, 0]
+                    cy = ri * dth[i, 1] + rj * dth[j, 1]
+                    cz = ri * dth[i, 2] + rj * dth[j, 2]
+                    rx = rx - (cy * cnz - cz * cny)
+                    ry = ry - (cz * cnx - cx * cnz)
+                    ez = ez - (cx * cny - cy * cnx)
             cs = cstate[i, k]
             (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf) = contact(
-                x[j, 0] - xi0, x[j, 1] - xi1, ex,
-                dx[j, 0] - di0, dx[j, 1] - di1, ez,
+                bx, by, ex, rx, ry, ez,
                 fs[i, k, 0], fs[i, k, 1], s2,
                 ri, props[j, 0], kni, props[j, 1], ksi, props[j, 2], xbi, props[j, 3],
                 fs0i, props[j, 4], mui, props[j, 5],
@@ -115,6 +175,36 @@ def _bodies(DIM, jit_device):
             qn += eqn
             qs += eqs
             qf += eqf
+            if ROT:
+                # the shear force acts at the contact point R_i n; rolling resistance on top
+                rs = series(ri, rj)
+                kr = series(ksi, props[j, 2]) * rs * rs
+                lim = min(props[i, 6], props[j, 6]) * rs * max(-fn, 0.0)
+                if DIM == 2:  # about z only
+                    u0 = 0.0
+                    u1 = 0.0
+                    u2 = dth[i, 0] - dth[j, 0]
+                    m0 = 0.0
+                    m1 = 0.0
+                    m2 = mr[i, k, 0]
+                else:
+                    u0 = dth[i, 0] - dth[j, 0]
+                    u1 = dth[i, 1] - dth[j, 1]
+                    u2 = dth[i, 2] - dth[j, 2]
+                    m0 = mr[i, k, 0]
+                    m1 = mr[i, k, 1]
+                    m2 = mr[i, k, 2]
+                (mx, my, mz, eqr) = rolling(nx, ny, nz, u0, u1, u2, m0, m1, m2, kr, lim)
+                if DIM == 2:
+                    mr[i, k, 0] = mz
+                else:
+                    mr[i, k, 0] = mx
+                    mr[i, k, 1] = my
+                    mr[i, k, 2] = mz
+                    t0 += ri * (ny * sz - nz * sy) + mx
+                    t1 += ri * (nz * sx - nx * sz) + my
+                t2 += ri * (nx * sy - ny * sx) + mz
+                qf += eqr
         q_bn[i] += 0.5 * qn
         q_bs[i] += 0.5 * qs
         q_f[i] += 0.5 * qf
@@ -132,19 +222,32 @@ def _bodies(DIM, jit_device):
             else:
                 fc = f2
                 g = g2
-            if free[i, d] != 0.0:
-                vn, an, dq = dof_free(v[i, d], a[i, d], fc + mi * g + fload[i, d], mi, etai, dt,
-                                      dx[i, d])
-                v[i, d] = vn
-                a[i, d] = an
+            vn, an, dq, dw = dof_step(free[i, d], v[i, d], a[i, d], fc, mi * g, fload[i, d], mi,
+                                      etai, dt, dx[i, d])
+            v[i, d] = vn
+            a[i, d] = an
+            qv += dq
+            we += dw
+        if ROT:
+            ii = inertia[i]
+            etar = etai * ii / mi
+            for d in range(NR):
+                if DIM == 2 or d == 2:
+                    tc = t2
+                elif d == 0:
+                    tc = t0
+                else:
+                    tc = t1
+                wn, an, dq, dw = dof_step(rfree[i, d], w[i, d], wa[i, d], tc, 0.0, 0.0, ii, etar,
+                                          dt, dth[i, d])
+                w[i, d] = wn
+                wa[i, d] = an
                 qv += dq
-            else:
-                a[i, d] = fc / mi
-                we -= 0.5 * fc * dx[i, d]
+                we += dw
         q_visc[i] += qv
         w_ext[i] += we
 
-    def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el):
+    def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr):
         # half of each contact's elastic energy (the other half is booked by j's row)
         e = 0.0
         for k in range(nbr.shape[1]):
@@ -160,67 +263,87 @@ def _bodies(DIM, jit_device):
                                 fs[i, k, 0], fs[i, k, 1], s2,
                                 props[i, 0], props[j, 0], props[i, 1], props[j, 1],
                                 props[i, 2], props[j, 2], cstate[i, k], hertz)
+            if ROT:
+                rs = series(props[i, 0], props[j, 0])
+                kr = series(props[i, 2], props[j, 2]) * rs * rs
+                m2 = 0.0
+                for d in range(NR):
+                    m2 += mr[i, k, d] * mr[i, k, d]
+                if kr > 0.0:
+                    e += 0.5 * m2 / kr
         e_el[i] = 0.5 * e
 
     return move_body, force_body, energy_body
 
 
 @functools.lru_cache(maxsize=None)
-def make_kernels(dim: int, target: str):
-    """Compile the kernels for ``dim`` in {2, 3} and ``target`` in {cpu, cuda}: a namespace with
-    ``move, force, energy`` over every element and ``move_idx, force_idx`` over the elements of
-    an index array (the first argument).
+def make_kernels(dim: int, target: str, rotation: bool = False):
+    """Compile the kernels for ``dim`` in {2, 3}, ``target`` in {cpu, cuda} and translation-only
+    or rotating elements: a namespace with ``move, force, energy`` over every element and
+    ``move_idx, force_idx`` over the elements of an index array (the first argument).
+
+    Argument order: ``move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt, *ROT_MOVE)``,
+    ``force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs, brate, q_visc, q_bn,
+    q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz, *ROT_FORCE)``,
+    ``energy(x, props, nbr, cstate, fs, hertz, e_el, mr)`` with ``ROT_MOVE = (w, wa, dth,
+    rfree, inertia)`` and ``ROT_FORCE = ROT_MOVE + (mr,)`` (placeholders without rotation:
+    :func:`placeholders`).
 
     CPU kernels take ``n`` implicitly and loop with ``prange``; CUDA kernels are launched as
     ``kernel[blocks, threads](...)`` with one thread per element.
     """
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim}")
+    rot = bool(rotation)
     if target == "cpu":
         import numba
         from numba import prange
 
         dev = functools.partial(numba.njit, fastmath=True, error_model="numpy", forceinline=True,
                                 cache=False)
-        move_b, force_b, energy_b = _bodies(dim, lambda f: dev(f))
+        move_b, force_b, energy_b = _bodies(dim, rot, lambda f: dev(f))
         move_b = dev(move_b)
         force_b = dev(force_b)
         energy_b = dev(energy_b)
         par = numba.njit(parallel=True, fastmath=True, error_model="numpy", cache=False)
 
         @par
-        def move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt):
+        def move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt, w, wa, dth, rfree, inertia):
             for i in prange(x.shape[0]):
-                move_b(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt)
+                move_b(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+                       w, wa, dth, rfree, inertia)
 
         @par
         def force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
-                  brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz):
+                  brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz,
+                  w, wa, dth, rfree, inertia, mr):
             for i in prange(x.shape[0]):
                 force_b(i, x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                         fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                        code_s, hertz)
+                        code_s, hertz, w, wa, dth, rfree, inertia, mr)
 
         @par
-        def energy(x, props, nbr, cstate, fs, hertz, e_el):
+        def energy(x, props, nbr, cstate, fs, hertz, e_el, mr):
             for i in prange(x.shape[0]):
-                energy_b(i, x, props, nbr, cstate, fs, hertz, e_el)
+                energy_b(i, x, props, nbr, cstate, fs, hertz, e_el, mr)
 
         # the same passes over a list of elements only (the others are asleep: see
         # geodem.fields.freeze)
         @par
-        def move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt):
+        def move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+                     w, wa, dth, rfree, inertia):
             for k in prange(idx.shape[0]):
-                move_b(idx[k], x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt)
+                move_b(idx[k], x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+                       w, wa, dth, rfree, inertia)
 
         @par
         def force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                       brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s,
-                      hertz):
+                      hertz, w, wa, dth, rfree, inertia, mr):
             for k in prange(idx.shape[0]):
                 force_b(idx[k], x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                         fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                        code_s, hertz)
+                        code_s, hertz, w, wa, dth, rfree, inertia, mr)
 
         return types.SimpleNamespace(move=move, force=force, energy=energy,
                                      move_idx=move_idx, force_idx=force_idx)
@@ -231,46 +354,65 @@ def make_kernels(dim: int, target: str):
         from numba import cuda
 
         dev = lambda f: cuda.jit(device=True)(f)  # noqa: E731
-        move_b, force_b, energy_b = _bodies(dim, dev)
+        move_b, force_b, energy_b = _bodies(dim, rot, dev)
         move_b, force_b, energy_b = dev(move_b), dev(force_b), dev(energy_b)
 
         @cuda.jit
-        def move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt):
+        def move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt, w, wa, dth, rfree, inertia):
             i = cuda.grid(1)
             if i < x.shape[0]:
-                move_b(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt)
+                move_b(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+                       w, wa, dth, rfree, inertia)
 
         @cuda.jit
         def force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
-                  brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz):
+                  brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz,
+                  w, wa, dth, rfree, inertia, mr):
             i = cuda.grid(1)
             if i < x.shape[0]:
                 force_b(i, x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                         fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                        code_s, hertz)
+                        code_s, hertz, w, wa, dth, rfree, inertia, mr)
 
         @cuda.jit
-        def energy(x, props, nbr, cstate, fs, hertz, e_el):
+        def energy(x, props, nbr, cstate, fs, hertz, e_el, mr):
             i = cuda.grid(1)
             if i < x.shape[0]:
-                energy_b(i, x, props, nbr, cstate, fs, hertz, e_el)
+                energy_b(i, x, props, nbr, cstate, fs, hertz, e_el, mr)
 
         @cuda.jit
-        def move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt):
+        def move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+                     w, wa, dth, rfree, inertia):
             k = cuda.grid(1)
             if k < idx.shape[0]:
-                move_b(idx[k], x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt)
+                move_b(idx[k], x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+                       w, wa, dth, rfree, inertia)
 
         @cuda.jit
         def force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                       brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s,
-                      hertz):
+                      hertz, w, wa, dth, rfree, inertia, mr):
             k = cuda.grid(1)
             if k < idx.shape[0]:
                 force_b(idx[k], x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                         fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                        code_s, hertz)
+                        code_s, hertz, w, wa, dth, rfree, inertia, mr)
 
         return types.SimpleNamespace(move=move, force=force, energy=energy,
                                      move_idx=move_idx, force_idx=force_idx)
     raise ValueError(f"unknown kernel target {target!r}; allowed: cpu, cuda")
+
+
+ROT_MOVE = ("w", "wa", "dth", "rfree", "inertia")
+ROT_FORCE = ROT_MOVE + ("mr",)
+
+
+def placeholders(xp=None):
+    """Stand-ins for the rotation arrays of a translation-only model (never read): one tiny
+    allocation per backend, not per step. Returns a dict name -> array."""
+    import numpy as np
+
+    xp = np if xp is None else xp
+    z2 = xp.zeros((1, 1))
+    return {"w": z2, "wa": z2, "dth": z2, "rfree": z2, "inertia": xp.zeros(1),
+            "mr": xp.zeros((1, 1, 1))}

@@ -37,6 +37,14 @@ class NumpyBackend(HostBackend):
         s.w_ext += np.where(fr, s.fload * ddx, -(0.5 * s.m[:, None] * s.a * ddx)).sum(axis=1)
         s.dx[:] = ddx
         s.x += ddx
+        if s.rotation:
+            rf = s.rfree != 0.0
+            ii = s.inertia[:, None]
+            etar = (s.eta * s.inertia / s.m)[:, None]
+            ddt = np.where(rf, dt * s.w + 0.5 * dt * dt * s.wa, dt * s.w)
+            s.q_visc += np.where(rf, 0.5 * etar * s.w * ddt, 0.0).sum(axis=1)
+            s.w_ext += np.where(rf, 0.0, -(0.5 * ii * s.wa * ddt)).sum(axis=1)
+            s.dth[:] = ddt
 
     def _geometry(self):
         s = self.s
@@ -55,6 +63,16 @@ class NumpyBackend(HostBackend):
         inv = 1.0 / dist
         n = d * inv[..., None]
         rel = s.dx[j] - s.dx[:, None, :]
+        if s.rotation:
+            # contact-point displacement: rel - (R_i dth_i + R_j dth_j) x n
+            ri, rj = s.r[:, None], s.r[j]
+            if s.dim == 2:
+                cz = ri * s.dth[:, 0][:, None] + rj * s.dth[j, 0]
+                rel[..., 0] = rel[..., 0] + cz * n[..., 1]
+                rel[..., 1] = rel[..., 1] - cz * n[..., 0]
+            else:
+                c = ri[..., None] * s.dth[:, None, :] + rj[..., None] * s.dth[j]
+                rel = rel - np.cross(c, n)
         xn = dist - (s.r[:, None] + s.r[j])
         kn = series_array(s.kn[:, None], s.kn[j])
         ks = series_array(s.ks[:, None], s.ks[j])
@@ -113,6 +131,9 @@ class NumpyBackend(HostBackend):
         qf = qf + np.where(slide, ((rot + new) * (trial - new)).sum(-1) * hks, 0.0)
         qf = np.where(valid, qf, 0.0)
 
+        if s.rotation:
+            torque, qr = self._rolling(valid, j, n, fn, new)
+            qf = qf + qr
         s.fs[:] = np.where(valid[..., None], new, s.fs)
         s.cstate[:] = np.where(tens, code_t, np.where(shr, code_s, s.cstate))
         fc = np.stack([_colsum(np.where(valid, fn * n[..., c] + new[..., c], 0.0))
@@ -130,6 +151,57 @@ class NumpyBackend(HostBackend):
         s.w_ext -= np.where(fr, 0.0, 0.5 * fc * s.dx).sum(axis=1)
         s.a[:] = np.where(fr, (f - eta * vn) / m, fc / m)
         s.v[:] = np.where(fr, vn, s.v)
+        if s.rotation:
+            rf = s.rfree != 0.0
+            ii = s.inertia[:, None]
+            etar = (s.eta * s.inertia / s.m)[:, None]
+            wn = (s.w + 0.5 * dt * s.wa + 0.5 * dt * torque / ii) / (1.0 + 0.5 * dt * etar / ii)
+            s.q_visc += np.where(rf, 0.5 * etar * wn * s.dth, 0.0).sum(axis=1)
+            s.w_ext -= np.where(rf, 0.0, 0.5 * torque * s.dth).sum(axis=1)
+            s.wa[:] = np.where(rf, (torque - etar * wn) / ii, torque / ii)
+            s.w[:] = np.where(rf, wn, s.w)
+
+    def _rolling(self, valid, j, n, fn, shear):
+        """Torques (N, nr) of the shear forces and the rolling moments, and the rolling heat
+        (N, W); updates ``mr`` (geodem.core.law.rolling, whole-matrix form)."""
+        s = self.s
+        ri = s.r[:, None]
+        rs = series_array(ri, s.r[j])
+        kr = series_array(s.ks[:, None], s.ks[j]) * rs * rs
+        lim = np.minimum(s.mu_r[:, None], s.mu_r[j]) * rs * np.maximum(-fn, 0.0)
+        hk = np.where(kr > 0.0, 0.5 / np.where(kr > 0.0, kr, 1.0), 0.0)
+        t = s.dth[:, None, :] - s.dth[j]
+        if s.dim == 2:
+            mom = s.mr[..., 0]
+            trial = mom - kr * t[..., 0]
+            a2 = trial * trial
+            q = np.zeros_like(trial)
+            nrm = np.sqrt(np.where(a2 > 0.0, a2, 1.0))
+            scale = np.where(a2 > lim * lim, np.where(lim > 0.0, lim / nrm, 0.0), 1.0)
+            new = trial * scale
+            q = q + np.where(a2 > lim * lim, (mom + new) * (trial - new) * hk, 0.0)
+            new3 = new[..., None]
+            arm = ri * (n[..., 0] * shear[..., 1] - n[..., 1] * shear[..., 0])
+            tq = (arm + new)[..., None]
+        else:
+            mom = s.mr
+            p = (n * mom).sum(-1)
+            mom = mom - p[..., None] * n
+            q = p * p * hk
+            pt = (n * t).sum(-1)
+            u = t - pt[..., None] * n
+            trial = mom - kr[..., None] * u
+            a2 = (trial * trial).sum(-1)
+            nrm = np.sqrt(np.where(a2 > 0.0, a2, 1.0))
+            slip = a2 > lim * lim
+            scale = np.where(slip, np.where(lim > 0.0, lim / nrm, 0.0), 1.0)
+            new3 = trial * scale[..., None]
+            q = q + np.where(slip, ((mom + new3) * (trial - new3)).sum(-1) * hk, 0.0)
+            tq = ri[..., None] * np.cross(n, shear) + new3
+        s.mr[:] = np.where(valid[..., None], new3, s.mr)
+        torque = np.stack([_colsum(np.where(valid, tq[..., c], 0.0)) for c in range(s.nrot)],
+                          axis=1)
+        return torque, np.where(valid, q, 0.0)
 
     def elastic_energy(self):
         s = self.s
@@ -149,5 +221,9 @@ class NumpyBackend(HostBackend):
             en = np.where(bonded, 0.5 * kn * xn * xn, np.where(comp, 0.4 * fh * ov, 0.0))
         else:
             en = np.where(bonded | comp, 0.5 * kn * xn * xn, 0.0)
+        if s.rotation:
+            rs = series_array(s.r[:, None], s.r[j])
+            kr = series_array(s.ks[:, None], s.ks[j]) * rs * rs
+            e = e + _spring((s.mr * s.mr).sum(-1), kr)
         self.e_el[:] = 0.5 * _colsum(np.where(valid, e + en, 0.0))
         return self.e_el

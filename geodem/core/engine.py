@@ -40,7 +40,10 @@ def validate_state(state) -> None:
             raise ValueError(f"{name} of element {i} is not finite ({arr[i]}); "
                              f"all {name} must be finite numbers")
     checks = (("r", 0.0, False), ("m", 0.0, False), ("kn", 0.0, False), ("ks", 0.0, True),
-              ("xb", 0.0, True), ("fs0", 0.0, True), ("mu", 0.0, True), ("eta", 0.0, True))
+              ("xb", 0.0, True), ("fs0", 0.0, True), ("mu", 0.0, True), ("eta", 0.0, True),
+              ("mu_r", 0.0, True))
+    if state.rotation:
+        checks = checks + (("inertia", 0.0, False),)
     for name, lo, allow_zero in checks:
         arr = getattr(state, name)
         ok = np.isfinite(arr) & ((arr >= lo) if allow_zero else (arr > lo))
@@ -69,6 +72,21 @@ def validate_state(state) -> None:
                                  "fixed elements may touch but not interpenetrate")
 
 
+def _check_initial_overlaps(state, limit: float) -> None:
+    """Refuse a model whose row contacts already overlap beyond ``limit`` x the smaller radius
+    (the first step would fire the pair apart): ValueError naming the pair, before stepping."""
+    from geodem.core.checks import max_overlap
+
+    if state.n < 2 or not (state.nbr >= 0).any():
+        return
+    worst, i, j = max_overlap(state.x, state.r, state.nbr)
+    if worst > limit:
+        raise ValueError(
+            f"elements {i} and {j} overlap by {worst:.3g} x the smaller radius before the first "
+            f"step; allowed: overlap_limit = {limit:g} (build a looser packing, relax it first, "
+            f"or raise overlap_limit)")
+
+
 def _refresh_acceleration(st, snap) -> None:
     """Make ``a`` consistent with changed freedom, velocity, load or damping (see ``change``)."""
     m = st.m[:, None]
@@ -83,6 +101,16 @@ def _refresh_acceleration(st, snap) -> None:
     a_new = np.where(fr1, (f_contact + m * g + st.fload - st.eta[:, None] * st.v) / m,
                      f_contact / m)
     st.a[changed] = a_new[changed]
+    if st.rotation and "w" in snap:
+        ii = st.inertia[:, None]
+        eta0 = (snap["eta"] * st.inertia / st.m)[:, None]
+        eta1 = (st.eta * st.inertia / st.m)[:, None]
+        r0, r1 = snap["rfree"] != 0.0, st.rfree != 0.0
+        ch = (r0 != r1) | (snap["w"] != st.w) | (snap["eta"] != st.eta)[:, None]
+        if ch.any():
+            t_contact = np.where(r0, ii * st.wa + eta0 * snap["w"], ii * st.wa)
+            wa_new = np.where(r1, (t_contact - eta1 * st.w) / ii, t_contact / ii)
+            st.wa[ch] = wa_new[ch]
 
 
 class Simulation:
@@ -94,9 +122,10 @@ class Simulation:
     backend: ``auto | numba | numpy | cupy`` (default: ``$GEODEM_BACKEND`` or ``auto``).
     dt: time step [s]; default ``dt_fraction`` x the smallest element period.
     check_every: steps between neighbour/crack/finiteness checks.
-    overlap_limit: largest allowed overlap as a fraction of the smaller radius.
-    monitor_every: steps between energy-growth and overlap checks (0 = never); must be a
-        multiple of ``check_every``.
+    overlap_limit: largest allowed overlap as a fraction of the smaller radius; a model that
+        starts beyond it is refused (ValueError) unless the monitor is off.
+    monitor_every: steps between energy-growth and overlap checks (0 = never, e.g. while a
+        packing is being relaxed); must be a multiple of ``check_every``.
     allow_unstable_dt: skip the refusal of a ``dt`` above the (conservative) stability bound;
         only for studies that measure where the integration fails
         (:mod:`geodem.labtests.stability`): the run then stops with InstabilityError.
@@ -112,8 +141,12 @@ class Simulation:
         if allow_unstable_dt:
             if not (dt > 0.0 and math.isfinite(dt)):
                 raise ValueError(f"time step dt must be a positive finite number [s], got {dt}")
+            self._dt_bound = timestep.stable_dt_bound(state)
         else:
-            timestep.check_dt(state, dt)
+            self._dt_bound = timestep.check_dt(state, dt)
+        if monitor_every:
+            # the overlap monitor would stop this run at its first check: refuse it now
+            _check_initial_overlaps(state, overlap_limit)
         state.dt = float(dt)
         self.check_every = int(check_every)
         self.overlap_limit = overlap_limit
@@ -190,7 +223,7 @@ class Simulation:
             if disp + self.check_every * s.dt * speed > 0.5 * s.skin:
                 from geodem.core import neighbors
 
-                b.pull(("x", "v", "x_ref", "nbr", "cstate", "fs", "brate"))
+                b.pull(("x", "v", "x_ref") + s.row_array_names())
                 self._harvest_host()
                 neighbors.build_rows(s)
                 self.rebuilds += 1
@@ -210,8 +243,8 @@ class Simulation:
         raise InstabilityError(
             f"the run became unstable at step {s.step}: non-finite positions/velocities of "
             f"elements {bad[:10].tolist()}{' ...' if bad.size > 10 else ''}; reduce dt "
-            f"(now {s.dt:.4g} s, stability bound {timestep.stable_dt_bound(s):.4g} s) or check "
-            f"their stiffness and mass")
+            f"(now {s.dt:.4g} s, stability bound at the start of the run "
+            f"{self._dt_bound:.4g} s) or check their stiffness and mass")
 
     # ------------------------------------------------------------------ cracks
     def _harvest(self):
@@ -277,6 +310,8 @@ class Simulation:
         fr = s.free != 0.0
         e_el = np.asarray(self.backend.elastic_energy())
         ke = 0.5 * (s.m[:, None] * s.v * s.v * fr).sum(axis=1)
+        if s.rotation:
+            ke = ke + 0.5 * (s.inertia[:, None] * s.w * s.w * (s.rfree != 0.0)).sum(axis=1)
         eg = -(s.m[:, None] * s.x * s.gravity[None, :s.dim] * fr).sum(axis=1)
         return {"kinetic": ke, "gravity": eg, "elastic": e_el.copy(),
                 "heat_viscous": s.q_visc.copy(), "heat_break_normal": s.q_break_n.copy(),
@@ -333,8 +368,8 @@ class Simulation:
             raise InstabilityError(
                 f"energy grew without a source at step {s.step}: closure error "
                 f"{e['closure_error']:.3g} > {limit} (fastest elements {fast}); the time step "
-                f"{s.dt:.4g} s is probably too large (stability bound "
-                f"{timestep.stable_dt_bound(s):.4g} s): reduce dt or check those elements' "
+                f"{s.dt:.4g} s is probably too large (stability bound at the start of the run "
+                f"{self._dt_bound:.4g} s): reduce dt or check those elements' "
                 f"stiffness and mass")
         return e
 
@@ -388,7 +423,8 @@ class Simulation:
 
         before = self.energies()["total"] if book_energy else 0.0
         st = self.sync()
-        snap = {k: getattr(st, k).copy() for k in ("free", "v", "fload", "eta")}
+        snap = {k: getattr(st, k).copy() for k in ("free", "v", "fload", "eta")
+                + (("w", "rfree") if st.rotation else ())}
         fn(st)
         _refresh_acceleration(st, snap)
         self.backend.push()
@@ -436,6 +472,7 @@ class Simulation:
         sim.cracks = extra["cracks"]
         sim._eg0, sim._emech0 = extra["eg0"], extra["emech0"]
         sim._floor = max(1e-12 * 0.5 * float((state.kn * state.r * state.r).sum()), 1e-300)
+        sim._dt_bound = timestep.stable_dt_bound(state)
         sim.backend = select(backend)
         sim.backend.attach(state)
         sim.fields, sim._field_every = [], 0

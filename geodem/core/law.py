@@ -45,7 +45,7 @@ import math
 
 UNBONDED = 0
 BONDED = 1
-HELPERS = ("series", "spring_energy")  # called by the law; compiled per target
+HELPERS = ("series", "spring_energy", "tangent", "slip")  # called by the law; compiled per target
 
 
 def series(a, b):
@@ -69,6 +69,23 @@ def spring_energy(f2, k):
     if k > 0.0:
         return 0.5 * f2 / k
     return 0.0
+
+
+def tangent(nx, ny, nz, ax, ay, az):
+    """Split ``a`` along the unit normal ``n``: returns the tangential part ``a - (a.n) n`` and
+    ``a.n``."""
+    p = nx * ax + ny * ay + nz * az
+    return ax - p * nx, ay - p * ny, az - p * nz, p
+
+
+def slip(sx, sy, sz, tx, ty, tz, scale, hk):
+    """A spring of compliance ``2 hk`` capped from its trial value ``t`` to ``t * scale``,
+    having held ``s`` at the start of the step: returns the capped value and the heat of the
+    slip, mean force x slip = ``(s + t_new) . (t - t_new) hk``."""
+    bx = tx * scale
+    by = ty * scale
+    bz = tz * scale
+    return bx, by, bz, ((sx + bx) * (tx - bx) + (sy + by) * (ty - by) + (sz + bz) * (tz - bz)) * hk
 
 
 def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
@@ -99,16 +116,10 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
 
     # rotate the stored spring onto the current tangent plane; the projection's energy loss
     # (|Fs|^2 - |Fs_rot|^2)/(2Ks) = p^2/(2Ks) is booked as friction heat
-    p = nx * sx + ny * sy + nz * sz
-    sx = sx - p * nx
-    sy = sy - p * ny
-    sz = sz - p * nz
+    sx, sy, sz, p = tangent(nx, ny, nz, sx, sy, sz)
     qf = p * p * hks
     # trial shear force from the tangential relative displacement u of the step
-    pr = nx * rx + ny * ry + nz * rz
-    ux = rx - pr * nx
-    uy = ry - pr * ny
-    uz = rz - pr * nz
+    ux, uy, uz, pr = tangent(nx, ny, nz, rx, ry, rz)
     tx = sx + ks * ux
     ty = sy + ks * uy
     tz = sz + ks * uz
@@ -152,13 +163,39 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
     lim = -mu * fn
     if tr2 > lim * lim:
         # Coulomb sliding: heat = mean force x slip, (Fs_rot + Fs_new)/2 . (Fs_trial - Fs_new)/Ks
-        scale = lim / math.sqrt(tr2)
-        nxs = tx * scale
-        nys = ty * scale
-        nzs = tz * scale
-        qf += ((sx + nxs) * (tx - nxs) + (sy + nys) * (ty - nys) + (sz + nzs) * (tz - nzs)) * hks
-        return fn, nx, ny, nz, nxs, nys, nzs, cs, qn, qs, qf
+        nxs, nys, nzs, dq = slip(sx, sy, sz, tx, ty, tz, lim / math.sqrt(tr2), hks)
+        return fn, nx, ny, nz, nxs, nys, nzs, cs, qn, qs, qf + dq
     return fn, nx, ny, nz, tx, ty, tz, cs, qn, qs, qf
+
+
+def rolling(nx, ny, nz, tx, ty, tz, mx, my, mz, kr, lim):
+    """Rolling resistance of one contact from element i's side (rotation option only).
+
+    An elastic-plastic rolling spring (Iwashita & Oda 1998, J. Eng. Mech. 124(3); model C of
+    Ai et al. 2011, Powder Technol. 206, without its dashpot): the stored moment on ``i``
+    ``M`` [N m] loses its twisting part (along ``n``), then ``M_trial = M - Kr t_r`` with
+    ``t_r`` the rolling part (normal to ``n``) of the step's relative rotation
+    ``t = dtheta_i - dtheta_j`` [rad], and is capped at ``|M| <= lim``.
+
+    The caller gives ``Kr = Ks R*^2`` [N m/rad] and ``lim = mu_r R* max(-Fn, 0)`` [N m]
+    (``R* = R_i R_j/(R_i + R_j)``), so a contact in tension or apart holds no moment. Like the
+    shear spring, every quantity changes sign exactly with the side, so ``j`` gets ``-M``.
+
+    Returns ``(mx, my, mz, q)``: the new moment and the heat [J] of the step, the twist
+    removed, ``p^2/(2Kr)``, plus the rolling slip ``(M_rot + M_new)/2 . (M_trial - M_new)/Kr``
+    (for ``lim = 0`` the whole stored energy less the work the elements receive this step).
+    """
+    hk = 0.5 / kr if kr > 0.0 else 0.0
+    mx, my, mz, p = tangent(nx, ny, nz, mx, my, mz)
+    ux, uy, uz, pt = tangent(nx, ny, nz, tx, ty, tz)
+    ax = mx - kr * ux
+    ay = my - kr * uy
+    az = mz - kr * uz
+    a2 = ax * ax + ay * ay + az * az
+    if a2 > lim * lim:
+        bx, by, bz, q = slip(mx, my, mz, ax, ay, az, lim / math.sqrt(a2) if lim > 0.0 else 0.0, hk)
+        return bx, by, bz, p * p * hk + q
+    return ax, ay, az, p * p * hk
 
 
 def contact_energy(dx, dy, dz, sx, sy, sz, ri, rj, kni, knj, ksi, ksj, cs, hertz):

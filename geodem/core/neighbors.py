@@ -35,7 +35,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from geodem.core.state import ACCUMULATORS, ELEMENT_SCALAR, ELEMENT_VEC, State
+from geodem.core.state import State
 
 __all__ = [
     "build_rows",
@@ -187,10 +187,11 @@ def _in_range(x, r, skin, i, j):
 
 @njit(cache=True, parallel=True)
 def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
-                    nbr, cst, fs, br):
+                    nbr, cst, fs, br, mr):
     """Rebuild every row in place; returns the wanted entry count of each row.
 
-    ``fs`` (int64) and ``br`` (int32) are bit views of the float arrays.
+    ``fs``, ``mr`` (int64) and ``br`` (int32) are bit views of the float arrays; ``mr`` (the
+    rolling moments, rotation only) has zero columns for a translation-only model.
 
     Row ``i`` reads only its own old row (copied to scratch first), so the update is in
     place and race free. A row whose count exceeds the width is left untouched (the caller
@@ -205,6 +206,8 @@ def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
         onb = np.empty(w, np.int32)
         ocs = np.empty(w, np.int32)
         ofs = np.empty((w, dim), np.int64)
+        nmr = mr.shape[2]
+        omr = np.empty((w, nmr), np.int64)
         obr = np.empty(w, np.int32)
         new = np.empty(w, np.int32)
         p1 = min(n, (b + 1) * _BLOCK)
@@ -220,6 +223,8 @@ def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
                     ocs[m] = cst[i, k]
                     for d in range(dim):
                         ofs[m, d] = fs[i, k, d]
+                    for d in range(nmr):
+                        omr[m, d] = mr[i, k, d]
                     obr[m] = br[i, k]
                     m += 1
             # geometric neighbours from the 9 / 27 surrounding cells
@@ -303,6 +308,10 @@ def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
                     vf = ofs[found, d] if found >= 0 else 0
                     if fs[i, a, d] != vf:
                         fs[i, a, d] = vf
+                for d in range(nmr):
+                    vm = omr[found, d] if found >= 0 else 0
+                    if mr[i, a, d] != vm:
+                        mr[i, a, d] = vm
             for a in range(cnt, w):
                 if nbr[i, a] != -1:
                     nbr[i, a] = -1
@@ -313,6 +322,9 @@ def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
                 for d in range(dim):
                     if fs[i, a, d] != 0:
                         fs[i, a, d] = 0
+                for d in range(nmr):
+                    if mr[i, a, d] != 0:
+                        mr[i, a, d] = 0
     return counts
 
 
@@ -333,6 +345,10 @@ def _set_width(state: State, w: int) -> None:
     fs[:, :c] = state.fs[:, :c]
     br[:, :c] = state.brate[:, :c]
     state.nbr, state.cstate, state.fs, state.brate = nbr, cst, fs, br
+    if state.rotation:
+        mr = np.zeros((n, w, state.nrot))
+        mr[:, :c] = state.mr[:, :c]
+        state.mr = mr
 
 
 def _normalize_rows(state: State) -> None:
@@ -340,6 +356,8 @@ def _normalize_rows(state: State) -> None:
     n, dim = state.n, state.dim
     specs = (("nbr", np.int32, (n, -1)), ("cstate", np.int32, (n, -1)),
              ("fs", np.float64, (n, -1, dim)), ("brate", np.float32, (n, -1)))
+    if state.rotation:
+        specs = specs + (("mr", np.float64, (n, -1, state.nrot)),)
     w = state.nbr.shape[1] if state.nbr.ndim == 2 else -1
     for name, dt, shape in specs:
         a = getattr(state, name)
@@ -352,7 +370,8 @@ def _normalize_rows(state: State) -> None:
 
 def _row_bits(state: State):
     # same memory, integer dtypes: the kernel moves per-pair state bit for bit
-    return state.nbr, state.cstate, state.fs.view(np.int64), state.brate.view(np.int32)
+    mr = state.mr.view(np.int64) if state.rotation else np.zeros((state.n, 0, 0), np.int64)
+    return (state.nbr, state.cstate, state.fs.view(np.int64), state.brate.view(np.int32), mr)
 
 
 def _check_skin(skin) -> float:
@@ -567,6 +586,8 @@ def rows_from_pairs(state: State, i, j, bonded: bool = True, brate=None) -> None
             b = int(nbr[a, dup[a]])
             raise ValueError(f"pair ({a}, {b}) is given more than once")
     state.nbr, state.cstate, state.fs, state.brate = nbr, cst, fs, br
+    if state.rotation:
+        state.mr = np.zeros((n, w, state.nrot))
 
 
 # ----------------------------------------------------------------------------- spatial sort
@@ -672,8 +693,7 @@ def spatial_sort(state: State) -> np.ndarray:
     inv = np.empty(n, np.int32)
     inv[perm] = np.arange(n, dtype=np.int32)
     state.nbr[...] = _permute_nbr(state.nbr, perm, inv)
-    names = ELEMENT_VEC + ELEMENT_SCALAR + ("props", "group", "cstate", "fs", "brate") \
-        + ACCUMULATORS
+    names = tuple(k for k in state.array_names() if k != "nbr")
     # one scratch buffer for all arrays (a[perm] would allocate, and page-fault, each time);
     # parallel row gather (numpy's take is single threaded and slow on (N, W, dim))
     scratch = np.empty(max(getattr(state, k).nbytes for k in names), np.uint8)

@@ -13,13 +13,14 @@ Element arrays (SI units)
     eta          (N,)     float64   global (mass) damping coefficient [kg/s]
     props        (N, 8)   float64   the parameters a neighbour's contact needs, packed so that one
                                     cache line holds them all (the kernels gather them per contact):
-                                    columns r, kn, ks, xb, fs0, mu (+2 spare). Read and write them
-                                    through the named column views:
+                                    columns r, kn, ks, xb, fs0, mu, mu_r (+1 spare). Read and write
+                                    them through the named column views:
     r            (N,)     view      radius [m]
     kn, ks       (N,)     view      element normal / shear spring stiffness [N/m]
     xb           (N,)     view      element breaking displacement [m]
     fs0          (N,)     view      element initial shear resistance [N]
     mu           (N,)     view      element friction coefficient [-]
+    mu_r         (N,)     view      element rolling-resistance coefficient [-] (rotation only)
     free         (N, dim) float64   1.0 for a free degree of freedom, 0.0 for a fixed or
                                     kinematic one (moved at its velocity ``v``)
     fload        (N, dim) float64   external load per element [N] (gravity is separate)
@@ -34,6 +35,15 @@ Contact rows (each contact stored in both elements' rows)
     fs           (N, W, dim) float64 shear spring force acting on the row's element [N]
     brate        (N, W)   float32   bond_rate: scales the breaking force and Fs0 [-]
 
+Rotation (optional, ``None`` unless :func:`enable_rotation` was called; MatDEM's elements
+translate only, PHYSICS.md section 1). ``nr`` = 1 in 2-D (about z), 3 in 3-D.
+    w            (N, nr)  float64   angular velocity [rad/s]
+    wa           (N, nr)  float64   angular acceleration T/I of the last force evaluation [rad/s^2]
+    dth          (N, nr)  float64   rotation of the last step [rad]
+    rfree        (N, nr)  float64   1.0 free rotation, 0.0 fixed / prescribed (turns at ``w``)
+    inertia      (N,)     float64   moment of inertia [kg m^2]
+    mr           (N, W, nr) float64 rolling-resistance moment acting on the row's element [N m]
+
 Accumulated energy [J] per element (half of each contact's share goes to each side)
     q_visc, q_break_n, q_break_s, q_fric, w_ext   (N,) float64
 """
@@ -45,10 +55,12 @@ import numpy as np
 
 ELEMENT_VEC = ("x", "v", "a", "dx", "x_ref", "free", "fload")
 ELEMENT_SCALAR = ("m", "eta")
-PROPS = ("r", "kn", "ks", "xb", "fs0", "mu")  # columns of ``props``
+PROPS = ("r", "kn", "ks", "xb", "fs0", "mu", "mu_r")  # columns of ``props``
 PROPS_WIDTH = 8
 ACCUMULATORS = ("q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext")
 ROW_ARRAYS = ("nbr", "cstate", "fs", "brate")
+ROT_ELEMENT = ("w", "wa", "dth", "rfree", "inertia")  # present only with rotation
+ROT_ROWS = ("mr",)
 
 # contact state codes
 UNBONDED = 0
@@ -95,6 +107,13 @@ class State:
     q_break_s: np.ndarray
     q_fric: np.ndarray
     w_ext: np.ndarray
+    # rotation (None: translation only, MatDEM's default)
+    w: np.ndarray | None = None
+    wa: np.ndarray | None = None
+    dth: np.ndarray | None = None
+    rfree: np.ndarray | None = None
+    inertia: np.ndarray | None = None
+    mr: np.ndarray | None = None
     gravity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     groups: dict = field(default_factory=dict)  # name -> group id
     thickness: float = 0.0  # 2-D disc thickness [m] (information; masses are given)
@@ -113,8 +132,25 @@ class State:
     def width(self) -> int:
         return self.nbr.shape[1]
 
+    @property
+    def rotation(self) -> bool:
+        """True when the elements carry rotational degrees of freedom."""
+        return self.w is not None
+
+    @property
+    def nrot(self) -> int:
+        """Rotational degrees of freedom per element: 1 in 2-D, 3 in 3-D."""
+        return 1 if self.dim == 2 else 3
+
     def array_names(self):
-        return ELEMENT_VEC + ELEMENT_SCALAR + ("props", "group") + ROW_ARRAYS + ACCUMULATORS
+        names = ELEMENT_VEC + ELEMENT_SCALAR + ("props", "group") + ROW_ARRAYS + ACCUMULATORS
+        if self.rotation:
+            names = names + ROT_ELEMENT + ROT_ROWS
+        return names
+
+    def row_array_names(self):
+        """The per-contact arrays (carried by pair identity across neighbour rebuilds)."""
+        return ROW_ARRAYS + (ROT_ROWS if self.rotation else ())
 
     def arrays(self) -> dict:
         return {k: getattr(self, k) for k in self.array_names()}
@@ -154,7 +190,7 @@ for _c, _name in enumerate(PROPS):
 
 
 def new_state(x, r, m, *, dim=None, width=16, kn=0.0, ks=0.0, xb=0.0, fs0=0.0, mu=0.0,
-              eta=0.0) -> State:
+              eta=0.0, mu_r=0.0) -> State:
     """Allocate a state for elements at ``x`` (N, dim) with radii ``r`` and masses ``m``.
 
     Scalar parameters are broadcast to all elements. Rows start empty (``nbr = -1``).
@@ -170,7 +206,7 @@ def new_state(x, r, m, *, dim=None, width=16, kn=0.0, ks=0.0, xb=0.0, fs0=0.0, m
         return np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))).copy()
 
     props = np.zeros((n, PROPS_WIDTH))
-    for c, v in enumerate((r, kn, ks, xb, fs0, mu)):
+    for c, v in enumerate((r, kn, ks, xb, fs0, mu, mu_r)):
         props[:, c] = np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))
 
     z = lambda: np.zeros((n, d))  # noqa: E731
@@ -185,3 +221,36 @@ def new_state(x, r, m, *, dim=None, width=16, kn=0.0, ks=0.0, xb=0.0, fs0=0.0, m
         gravity=np.zeros(d), groups={"all": 0},
     )
     return st
+
+
+def inertia_of(state: State) -> np.ndarray:
+    """Moment of inertia of each element [kg m^2]: a solid sphere ``(2/5) m r^2`` in 3-D, a
+    disc (cylinder about its axis) ``(1/2) m r^2`` in 2-D."""
+    return (0.5 if state.dim == 2 else 0.4) * state.m * state.r * state.r
+
+
+def enable_rotation(state: State, mu_r=None, inertia=None) -> State:
+    """Give every element rotational degrees of freedom (in place; returns ``state``).
+
+    Rotation is an option beyond MatDEM's translation-only elements (PHYSICS.md section 1): the
+    shear force then acts at the contact point and turns the elements, and contacts in
+    compression resist rolling with an elastic-plastic moment (see
+    :func:`geodem.core.law.rolling`). ``mu_r`` (scalar or (N,)) sets the rolling-resistance
+    coefficient (default: keep ``state.mu_r``); ``inertia`` defaults to :func:`inertia_of`.
+    Elements whose translation is entirely fixed or prescribed get a fixed rotation (walls and
+    platens do not spin); free them with ``state.rfree``. Calling it again resets the
+    angular state.
+    """
+    n, nr = state.n, state.nrot
+    if mu_r is not None:
+        state.mu_r = np.broadcast_to(np.asarray(mu_r, dtype=np.float64), (n,))
+    state.inertia = np.ascontiguousarray(
+        inertia_of(state) if inertia is None
+        else np.broadcast_to(np.asarray(inertia, dtype=np.float64), (n,))).copy()
+    state.w = np.zeros((n, nr))
+    state.wa = np.zeros((n, nr))
+    state.dth = np.zeros((n, nr))
+    moving = (state.free != 0.0).any(axis=1)
+    state.rfree = np.repeat(moving.astype(np.float64)[:, None], nr, axis=1)
+    state.mr = np.zeros((n, state.width, nr))
+    return state

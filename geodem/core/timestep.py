@@ -59,8 +59,9 @@ def stable_dt_bound(state) -> float:
     return math.inf if w == 0.0 else 2.0 / w
 
 
-def check_dt(state, dt: float) -> None:
-    """Raise ValueError when ``dt`` is not positive or above the stability bound."""
+def check_dt(state, dt: float) -> float:
+    """Raise ValueError when ``dt`` is not positive or above the stability bound; returns the
+    bound [s]."""
     if not (dt > 0.0 and math.isfinite(dt)):
         raise ValueError(f"time step dt must be a positive finite number [s], got {dt}")
     lim = stable_dt_bound(state)
@@ -70,6 +71,7 @@ def check_dt(state, dt: float) -> None:
             f"(Gershgorin bound over the current contacts); allowed: 0 < dt < {lim:.4g} s, "
             f"default {DEFAULT_FRACTION} x the smallest element period = "
             f"{default_dt(state):.4g} s")
+    return lim
 
 
 def critical_damping(m, k):

@@ -2,8 +2,6 @@
 a ball dropped on its left end. The far field falls asleep and is skipped; the grains the ball
 hits wake up; the books stay closed and the answer matches the run without freezing."""
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -11,6 +9,7 @@ import pytest
 from geodem.core.engine import Simulation
 from geodem.fields.freeze import FreezeField
 from geodem.labtests.freeze_study import D, settled
+from tests.conftest import run_in_cuda_simulator
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
@@ -109,14 +108,7 @@ print(json.dumps({"err": err, "a_err": float(np.abs(a_c - a_n).max() / np.abs(a_
 def test_gpu_kernels_step_the_same_subset_in_the_simulator():
     """The CUDA kernels' index-list variants (numba's CUDA simulator) step the same elements
     as the CPU ones: same positions and forces after 30 steps."""
-    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", GEODEM_CUDA_SIM="1")
     here = os.path.dirname(os.path.abspath(__file__))
-    root = os.path.dirname(os.path.dirname(here))
-    p = subprocess.run([sys.executable, "-c", CUDA_SCRIPT, root, here], env=env,
-                       capture_output=True, text=True, timeout=600)
-    assert p.returncode == 0, p.stderr[-3000:]
-    import json
-
-    out = json.loads(p.stdout.strip().splitlines()[-1])
+    out = run_in_cuda_simulator(CUDA_SCRIPT, here)
     assert out["err"] < 1e-12 * D
     assert out["a_err"] < 1e-8  # net forces near equilibrium: sums of cancelling terms

@@ -1,15 +1,11 @@
 """All backends give the same forces and the same bond decisions on the same model."""
-import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from geodem.backends import BackendError, available, resolve_name, select
 from geodem.core.engine import Simulation
-from tests.conftest import make_specimen
+from tests.conftest import make_specimen, run_in_cuda_simulator, step_backends
 
 FIELDS = ("x", "v", "a", "fs", "q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext")
 
@@ -25,13 +21,7 @@ def assert_same(s1, s2, rtol=1e-12):
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_numba_matches_numpy_reference(dim):
-    base = make_specimen(n=400, dim=dim)
-    runs = {}
-    for be in ("numba", "numpy"):
-        st = base.copy()
-        sim = Simulation(st, backend=be, check_every=10**9)
-        sim.run(12)
-        runs[be] = (st, sim.crack_log())
+    runs = step_backends(make_specimen(n=400, dim=dim), ("numba", "numpy"), 12)
     assert_same(runs["numba"][0], runs["numpy"][0])
     log_a, log_b = runs["numba"][1], runs["numpy"][1]
     assert len(log_a) > 5, "the model must break bonds for the decision check to mean anything"
@@ -42,18 +32,11 @@ def test_numba_matches_numpy_reference(dim):
 CUDA_SCRIPT = r"""
 import json, sys, numpy as np
 sys.path.insert(0, sys.argv[1])
-from tests.conftest import make_specimen
-from geodem.core.engine import Simulation
+from tests.conftest import make_specimen, step_backends
 out = {}
 for dim in (2, 3):
-    base = make_specimen(n=60, dim=dim, vscale=1.0)
-    res = {}
-    for be in ("cupy", "numpy"):
-        st = base.copy()
-        sim = Simulation(st, backend=be, check_every=10**9)
-        sim.run(4)
-        sim.sync()
-        res[be] = (st, len(sim.crack_log()))
+    res = step_backends(make_specimen(n=60, dim=dim, vscale=1.0), ("cupy", "numpy"), 4)
+    res = {k: (st, len(log)) for k, (st, log) in res.items()}
     a, b = res["cupy"][0], res["numpy"][0]
     err = max(float(np.abs(getattr(a, k) - getattr(b, k)).max()
                     / max(np.abs(getattr(b, k)).max(), 1e-300)) for k in ("x", "v", "a", "fs"))
@@ -65,12 +48,7 @@ print(json.dumps(out))
 
 def test_cuda_kernels_in_simulator():
     """The GPU kernels (numba CUDA target) run in numba's CUDA simulator and match NumPy."""
-    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", GEODEM_CUDA_SIM="1")
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    p = subprocess.run([sys.executable, "-c", CUDA_SCRIPT, root], env=env, capture_output=True,
-                       text=True, timeout=300)
-    assert p.returncode == 0, p.stderr[-3000:]
-    out = json.loads(p.stdout.strip().splitlines()[-1])
+    out = run_in_cuda_simulator(CUDA_SCRIPT, timeout=300)
     for dim, res in out.items():
         assert res["err"] < 1e-12, (dim, res)
         assert res["same_state"], (dim, res)

@@ -94,3 +94,29 @@ def test_deep_overlap_detected():
     sim = Simulation(st, backend="numba", monitor_every=10)
     with pytest.raises(InstabilityError, match=r"elements 0 and 1 overlap .* reduce the loading"):
         sim.run(2000)
+
+
+def test_energy_growth_message_quotes_the_bound_of_the_start():
+    """The blown-up state has few contacts left, so its bound says little; the message quotes
+    the bound of the model as it started."""
+    st = tb.build(amplitude=0.001)
+    b0 = stable_dt_bound(st)
+    sim = Simulation(st, backend="numba", monitor_every=10, dt=1.3 * b0, allow_unstable_dt=True)
+    with pytest.raises(InstabilityError) as err:
+        sim.run(20000)
+    assert f"stability bound at the start of the run {b0:.4g} s" in str(err.value)
+    assert f"{1.3 * b0:.4g} s" in str(err.value)
+
+
+def test_initial_overlap_refused_before_stepping():
+    x = np.array([[0.0, 0.0], [0.6, 0.0], [3.0, 0.0]])  # 0 and 1 overlap by 0.4 = 0.8 R
+    st = new_state(x, 0.5, 1.0, kn=1e6, ks=1e6, width=4)
+    rows_from_pairs(st, np.array([0]), np.array([1]), bonded=False)
+    before = st.x.copy()
+    with pytest.raises(ValueError, match=r"elements [01] and [01] overlap by 0.8 x the smaller "
+                                         r"radius before the first step; allowed: "
+                                         r"overlap_limit = 0.5"):
+        Simulation(st, backend="numba")
+    assert np.array_equal(st.x, before) and st.step == 0
+    Simulation(st, backend="numba", overlap_limit=0.9)  # a looser limit accepts it
+    Simulation(st, backend="numba", monitor_every=0)  # so does a relaxation without monitor

@@ -1,0 +1,204 @@
+"""Rotational degrees of freedom (option): hand-computed rolling results, backend agreement,
+energy books, rebuilds and checkpoints."""
+import math
+
+import numpy as np
+import pytest
+
+from geodem.core import neighbors
+from geodem.core.engine import Simulation
+from geodem.core.law import rolling
+from geodem.core.state import enable_rotation, new_state
+from tests.conftest import make_specimen, run_in_cuda_simulator, step_backends
+
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
+
+R = 1e-3  # disc radius [m]
+RF = 1.0  # floor: one fixed element this large, flat over the travel
+M = 1e-3  # disc mass [kg]
+G = 10.0
+
+
+def disc_on_floor(dim, v0, w0=0.0, mu=0.5, mu_r=0.0, kn=1e5):
+    """A free element resting on a huge fixed one, launched along +x at ``v0`` spinning at
+    ``w0`` (about z)."""
+    x = np.zeros((2, dim))
+    x[0, 1] = R - M * G / kn  # resting overlap m g / kn
+    x[1, 1] = -RF
+    st = new_state(x, [R, RF], [M, 1e3], kn=kn, ks=0.5 * kn, mu=mu, width=4)
+    st.free[1] = 0.0
+    st.gravity[1] = -G
+    neighbors.build_rows(st, skin=0.2 * R)
+    enable_rotation(st, mu_r=mu_r)
+    st.v[0, 0] = v0
+    st.w[0, -1] = w0
+    return st
+
+
+@pytest.mark.parametrize("dim, k_inertia", [(2, 0.5), (3, 0.4)])
+def test_sliding_element_ends_rolling_at_the_analytic_speed(dim, k_inertia):
+    """A disc (sphere) launched sliding without spin: friction slows it and spins it up until it
+    rolls at v0 / (1 + I/(m R^2)) = 2/3 v0 (5/7 v0), after t = v0 k/((1+k) mu g)."""
+    v0, mu = 0.05, 0.5
+    st = disc_on_floor(dim, v0, mu=mu)
+    sim = Simulation(st, backend="numba")
+    t_roll = v0 * k_inertia / ((1 + k_inertia) * mu * G)
+    sim.run(int(3 * t_roll / st.dt))
+    # the undamped shear spring rings (+-1 %) about the rolling state: average ~20 periods
+    v, w = [], []
+    for _ in range(200):
+        sim.run(1)
+        v.append(st.v[0, 0])
+        w.append(st.w[0, -1])
+    v_end = v0 / (1.0 + k_inertia)
+    assert np.mean(v) == pytest.approx(v_end, rel=2e-3)
+    # rolling without slip: v = -w R (spin about -z for travel along +x)
+    assert -np.mean(w) * R == pytest.approx(v_end, rel=2e-3)
+    # friction heat = the kinetic energy lost
+    e = sim.energies()
+    ke_lost = 0.5 * M * v0 ** 2 - e["kinetic"]
+    assert e["heat_friction"] == pytest.approx(ke_lost, rel=0.02)
+    assert e["closure_error"] < 1e-3
+
+
+def test_rolling_resistance_stops_a_rolling_disc_at_the_analytic_distance():
+    """A disc rolling at v0 under the moment mu_r R* m g decelerates at
+    a = mu_r (R*/R) g / (1 + I/(m R^2)) and stops after v0^2 / (2 a)."""
+    v0, mu_r = 0.02, 0.1
+    st = disc_on_floor(2, v0, w0=-v0 / R, mu_r=mu_r)
+    sim = Simulation(st, backend="numba")
+    rs = R * RF / (R + RF)
+    a = mu_r * (rs / R) * G / 1.5
+    t_stop = v0 / a
+    x0 = st.x[0, 0]
+    sim.run(int(0.5 * t_stop / st.dt))
+    assert st.v[0, 0] == pytest.approx(v0 - a * 0.5 * t_stop, rel=0.01)
+    sim.run(int(1.0 * t_stop / st.dt))
+    assert abs(st.v[0, 0]) < 0.02 * v0
+    assert st.x[0, 0] - x0 == pytest.approx(v0 ** 2 / (2 * a), rel=0.02)
+    assert sim.energies()["closure_error"] < 1e-3
+
+
+def test_translation_only_is_unchanged_without_rotation():
+    st = disc_on_floor(2, 0.05)
+    st2 = st.copy()
+    for k in ("w", "wa", "dth", "rfree", "inertia", "mr"):
+        setattr(st2, k, None)
+    assert not st2.rotation and st.rotation
+    x0 = st2.x[0, 0]
+    Simulation(st2, backend="numba").run(2000)
+    # no rotation (MatDEM): the element slides until friction stops it, after v0^2/(2 mu g)
+    assert abs(st2.v[0, 0]) < 0.02 * 0.05  # what is left is the ringing shear spring
+    assert st2.x[0, 0] - x0 == pytest.approx(0.05 ** 2 / (2 * 0.5 * G), rel=0.02)
+
+
+def test_rolling_law_by_hand():
+    # 2-D (about z): elastic, then capped at lim with the slip heat
+    mx, my, mz, q = rolling(1.0, 0.0, 0.0, 0.0, 0.0, 2e-3, 0.0, 0.0, 0.1, 100.0, 1.0)
+    assert (mx, my) == (0.0, 0.0) and mz == pytest.approx(0.1 - 0.2) and q == 0.0
+    mx, my, mz, q = rolling(1.0, 0.0, 0.0, 0.0, 0.0, 2e-2, 0.0, 0.0, 0.5, 100.0, 1.0)
+    # trial 0.5 - 2 = -1.5 -> capped at -1; heat (0.5 - 1) (-1.5 + 1) / (2 x 100)
+    assert mz == pytest.approx(-1.0) and q == pytest.approx((0.5 - 1.0) * (-0.5) / 200.0)
+    # 3-D: twist (along n) is dropped and its energy booked; apart (lim 0) holds nothing
+    mx, my, mz, q = rolling(0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.3, 100.0, 1.0)
+    assert (mx, my, mz) == (0.0, 0.0, 0.0) and q == pytest.approx(0.09 / 200.0)
+    mx, my, mz, q = rolling(0.0, 0.0, 1.0, 1e-3, 0.0, 0.0, 0.2, 0.0, 0.0, 100.0, 0.0)
+    assert (mx, my, mz) == (0.0, 0.0, 0.0)
+    assert q == pytest.approx(0.2 * (0.2 - 0.1) / 200.0)
+
+
+def rel_diff(a, b, name):
+    """Largest difference of array ``name`` of two states, relative to its largest value."""
+    x, y = getattr(a, name), getattr(b, name)
+    return float(np.abs(x - y).max() / max(np.abs(x).max(), np.abs(y).max(), 1e-300))
+
+
+def _rotating_specimen(n, dim, seed=1):
+    st = make_specimen(n=n, dim=dim)
+    enable_rotation(st, mu_r=0.05)
+    rng = np.random.default_rng(seed)
+    st.w[:] = rng.normal(0.0, 50.0, st.w.shape)
+    st.gravity[1] = -9.81
+    return st
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_numba_matches_numpy_with_rotation(dim):
+    out = step_backends(_rotating_specimen(300, dim), ("numba", "numpy"), 8)
+    a, b = out["numba"][0], out["numpy"][0]
+    assert np.array_equal(a.cstate, b.cstate)
+    assert len(out["numba"][1]) == len(out["numpy"][1]) > 5
+    for k in ("x", "v", "a", "fs", "w", "wa", "mr", "q_visc", "q_fric", "w_ext"):
+        assert rel_diff(a, b, k) <= 1e-12, k
+    assert np.abs(a.mr).max() > 0.0 and np.abs(a.w).max() > 0.0
+
+
+CUDA_SCRIPT = r"""
+import json, sys, numpy as np
+sys.path.insert(0, sys.argv[1])
+from tests.unit.test_rotation import _rotating_specimen, rel_diff
+from tests.conftest import step_backends
+out = {}
+for dim in (2, 3):
+    res = {k: st for k, (st, _) in step_backends(_rotating_specimen(60, dim), ("cupy", "numpy"),
+                                                  4).items()}
+    out[dim] = max(rel_diff(res["cupy"], res["numpy"], k)
+                   for k in ("x", "v", "fs", "w", "wa", "mr"))
+print(json.dumps(out))
+"""
+
+
+def test_cuda_kernels_with_rotation_in_simulator():
+    for dim, err in run_in_cuda_simulator(CUDA_SCRIPT, timeout=300).items():
+        assert err < 1e-12, (dim, err)
+
+
+def test_energy_books_close_in_a_rotating_collapse():
+    """Unbonded rotating grains falling and colliding with friction and rolling resistance,
+    undamped: every joule is kinetic (translation + rotation), potential, elastic or heat."""
+    st = _rotating_specimen(300, 2)
+    st.cstate[:] = 0
+    st.mu_r = 0.2
+    sim = Simulation(st, backend="numba")
+    sim.run(3000)
+    e = sim.energies()
+    assert e["heat_friction"] > 0.05 * abs(e["gravity"] - sim._eg0) > 0.0
+    assert e["closure_error"] < 2e-3
+
+
+def test_rebuild_and_checkpoint_carry_the_rolling_moments(tmp_path):
+    st = _rotating_specimen(200, 3)
+    st.cstate[:] = 0
+    sim = Simulation(st, backend="numba")
+    sim.run(200)
+    pairs_before = {(i, j): st.mr[i, k].copy() for i in range(st.n) for k, j in
+                    enumerate(st.nbr[i]) if j >= 0}
+    neighbors.build_rows(st, width=st.width + 4)
+    assert st.mr.shape == (st.n, st.width, 3)
+    for i in range(st.n):
+        for k, j in enumerate(st.nbr[i]):
+            if (i, j) in pairs_before:
+                assert np.array_equal(st.mr[i, k], pairs_before[(i, j)])
+    sim.backend.push()
+    path = tmp_path / "rot.npz"
+    sim.save(path)
+    sim.run(50)
+    sim2 = Simulation.load(path, backend="numba")
+    assert sim2.state.rotation
+    sim2.run(50)
+    for k in ("x", "w", "mr", "fs"):
+        assert np.array_equal(getattr(sim2.state, k), getattr(st, k)), k
+
+
+def test_bad_rotation_input_is_refused():
+    st = disc_on_floor(2, 0.0)
+    st.inertia[0] = 0.0
+    with pytest.raises(ValueError, match="inertia of element 0"):
+        Simulation(st, backend="numba")
+    st = disc_on_floor(2, 0.0, mu_r=-0.1)
+    with pytest.raises(ValueError, match="mu_r of element 0.*>= 0"):
+        Simulation(st, backend="numba")
+    from geodem.build.walls import append_elements
+    with pytest.raises(ValueError, match="enable_rotation last"):
+        append_elements(disc_on_floor(2, 0.0), np.zeros((1, 2)), r=R, m=M, kn=1.0)
+    assert math.isfinite(R)
