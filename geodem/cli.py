@@ -599,11 +599,14 @@ def _float_list(value: Optional[str], name: str, integer=False):
     "the pore-fluid and thermal fields against 2/lambda_max, and a balance's unbalanced force "
     "against its damping; writes stability.json and stability_*.png into -o DIR.\n\n"
     "KIND 'speed-accuracy': error against wall time of the "
-    "cases with a reference (--cases; --quick: a tiny grid); docs/speed_accuracy.md."))
+    "cases with a reference (--cases; --quick: a tiny grid); docs/speed_accuracy.md.\n\n"
+    "KIND 'graded': the landslide uniform and graded (model.coarsen factor 1, 2, 3) over "
+    "three packing seeds; writes graded_study.json and graded_study.md; docs/graded.md."))
 @_guard
 def study_cmd(
     kind: Annotated[str, typer.Argument(metavar="KIND", help="ucs, stability, "
-                                                             "speed-accuracy or freeze")],
+                                                             "speed-accuracy, freeze or "
+                                                             "graded")],
     out: Annotated[str, typer.Option("-o", "--out", help="Output directory.")],
     workflow: Annotated[str, typer.Option("--workflow", help="UCS workflow file.")] =
     "workflows/ucs.yaml",
@@ -638,6 +641,15 @@ def study_cmd(
         con.print(f"wrote freeze_study.json, freeze_study.md to {out}", highlight=False)
         return
 
+    if kind == "graded":
+        from geodem.labtests.freeze_study import describe_graded, graded_study
+
+        con = _out()
+        graded_study(out, progress=lambda r: con.print(escape(describe_graded(r)),
+                                                          highlight=False))
+        con.print(f"wrote graded_study.json, graded_study.md to {out}", highlight=False)
+        return
+
     if kind == "stability":
         from geodem.labtests.stability import describe, stability_study
 
@@ -649,7 +661,7 @@ def study_cmd(
                   highlight=False)
         return
     if kind != "ucs":
-        _fail(f"study KIND {kind!r}: allowed: ucs, stability, speed-accuracy, freeze",
+        _fail(f"study KIND {kind!r}: allowed: ucs, stability, speed-accuracy, freeze, graded",
               USER_ERROR)
     n = _float_list(across, "--across", integer=True)
     f = _float_list(fractions, "--dt-fractions")

@@ -199,7 +199,7 @@ def _load(x, r, lo, hi):
     return float(_contacts(x, r, lo, hi).sum()) / (3.0 * r.size)
 
 
-def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60):
+def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60, x0=None):
     """Compress the spheres of radii ``r0`` (reduced units, ``d_mean`` ~ 1) isotropically
     inside the box ``[lo, hi]`` by radius expansion until the mean overlap of the contacts is
     within a factor 2 of ``overlap`` (module docstring, step 2). Returns ``(x, r, info)``.
@@ -208,7 +208,9 @@ def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60):
     last unjammed state, until a state is jammed (mean overlap above half the target). Then
     along that jammed branch: the radii shrink (or grow) by the factor a linear fit of
     overlap against scale asks for, each minimised from the nearest jammed state above the
-    target (a jammed packing decompresses along its own branch down to its jamming point)."""
+    target (a jammed packing decompresses along its own branch down to its jamming point).
+    ``x0``: starting centres (reduced units; default uniformly random in the box), e.g. placed
+    with a density that follows a graded size field (:mod:`geodem.build.graded`)."""
     rng = np.random.default_rng(seed)
     lo = np.asarray(lo, float)
     hi = np.asarray(hi, float)
@@ -216,7 +218,8 @@ def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60):
     vol = float(np.prod(hi - lo))
     unit = (4.0 / 3.0 * np.pi * (r0 ** 3).sum()) if dim == 3 else np.pi * (r0 ** 2).sum()
     lam = (PHI_START * vol / unit) ** (1.0 / dim)
-    x = lo + rng.uniform(0.0, 1.0, (r0.size, dim)) * (hi - lo)
+    x = lo + rng.uniform(0.0, 1.0, (r0.size, dim)) * (hi - lo) if x0 is None else \
+        np.array(x0, float)
     ftol = FTOL * overlap
     emin = 0.5 * r0.size * (0.01 * overlap) ** 2
     lam_lo = None  # largest unjammed scale seen on the branch

@@ -51,7 +51,7 @@ from geodem.geo.errors import GeometryError
 from geodem.geo.raster import Terrain
 
 __all__ = ["Depth", "Below", "TerrainModel", "terrain_model", "surface_function",
-           "slip_surface_from_pair", "ELEMENT_KEYS"]
+           "slip_surface_from_pair", "band_size_field", "ELEMENT_KEYS"]
 
 SQRT2_3 = math.sqrt(2.0 / 3.0)
 SQRT3_2 = math.sqrt(3.0) / 2.0
@@ -143,6 +143,44 @@ def _horizontal(x, line):
     return p0 + x[..., :1] * u
 
 
+def band_size_field(top, d, factor, band, transition, *, sliding_surface=None, line=None,
+                    above=None):
+    """Size field of a graded terrain model (:mod:`geodem.build.graded`): fine elements
+    (diameter ``d``) in a band along the ground, coarser ones (up to ``factor d``) below it.
+
+    The fine region holds every point from ``above`` (default ``2 d``) above the top surface
+    down to ``band`` metres below the top surface and ``band`` below the sliding surface
+    (when given: the slide body and a band of ground under it). Below (and above) it the
+    diameter grows linearly with the vertical distance ``e`` to the fine region,
+    ``d (1 + (factor - 1) min(e / transition, 1))`` (:func:`geodem.build.graded.ramp`).
+    ``top`` and ``sliding_surface`` are surface specs (:func:`surface_function`), ``line`` the
+    section line of a 2-D model. Returns ``size(x (N, dim)) -> (N,)`` [m]."""
+    from geodem.build.graded import ramp
+
+    for name, v in (("d", d), ("band", band)):
+        if not (math.isfinite(float(v)) and float(v) > 0):
+            raise GeometryError(f"{name} must be finite and > 0 [m], got {v!r}")
+    if not (math.isfinite(float(factor)) and float(factor) >= 1):
+        raise GeometryError(f"factor must be finite and >= 1, got {factor!r}")
+    if not (math.isfinite(float(transition)) and float(transition) >= 0):
+        raise GeometryError(f"transition must be finite and >= 0 [m], got {transition!r}")
+    ftop = surface_function(top)
+    fslip = surface_function(sliding_surface, ftop)
+    up = 2.0 * float(d) if above is None else float(above)
+
+    def size(x):
+        x = np.asarray(x, float)
+        h = _horizontal(x, line)
+        zt = ftop(h)
+        floor = zt - band
+        if fslip is not None:
+            floor = np.minimum(floor, fslip(h) - band)
+        z = x[:, -1]
+        return ramp(np.maximum(floor - z, z - zt - up), d, factor, transition)
+
+    return size
+
+
 class Below(Shape):
     """Centres at or below a surface (plus ``offset`` [m]): ``z <= f(x, y) + offset`` in 3-D;
     in 2-D (a section along ``line``) ``y <= f(p0 + x u) + offset``. Combine with other shapes to
@@ -224,7 +262,9 @@ class TerrainModel:
         ``materials``: one dict of element parameters (``kn, ks`` [N/m], ``xb`` [m], ``fs0``
         [N], ``mu`` [-], ``rho`` [kg/m^3], optional ``mass`` [kg]) for every element, or a dict
         ``{group name: dict}`` covering every layer and the body; a ``"slide"`` entry overrides
-        the slide body's. Every touching pair is bonded (surface gap ``<= gap``, default
+        the slide body's. A value may also be an array with one entry per element (e.g. the
+        per-size parameters of a graded packing, :func:`geodem.build.graded.scale_params`).
+        Every touching pair is bonded (surface gap ``<= gap``, default
         ``1e-6 d``: the lattice's neighbours). ``gravity`` [m/s^2] along -z (-y in 2-D).
         ``sides``: ``"roller"`` (side groups' normal DOF fixed), ``"fixed"``, or None (free).
         ``slide_bond_rate``: bonds between the slide body and the ground below get this bond
@@ -298,13 +338,15 @@ class TerrainModel:
                 mat = table[name]
                 if key == "mass":
                     if mat.get("mass") is not None:
-                        arr[sel] = float(mat["mass"])
+                        mv = mat["mass"]
+                        arr[sel] = np.asarray(mv, float)[sel] if np.ndim(mv) == 1 else float(mv)
                         any_mass = True
                     continue
                 if key not in mat:
                     raise GeometryError(f"material of {name!r} lacks {key!r}; needed: "
                                         f"{list(ELEMENT_KEYS)}")
-                arr[sel] = float(mat[key])
+                val = mat[key]
+                arr[sel] = np.asarray(val, float)[sel] if np.ndim(val) == 1 else float(val)
             out[key] = arr if (key != "mass" or any_mass) else None
         if out["mass"] is not None and np.any(out["mass"] <= 0):
             # some materials give masses and some do not: fill the rest from rho
@@ -362,8 +404,10 @@ def terrain_model(top, d, *, base_z=None, base_depth=None, layers=(), body="rock
     dim : 3 (block under the terrain) or 2 (section along ``line``).
     line : 2-D: ``((x0, y0), (x1, y1))`` local; default west to east through the extent's middle.
     extent : local ``(xmin, ymin, xmax, ymax)``; default the terrain's extent.
-    base_thickness : thickness of the fixed base [m] (default ``2 d``).
-    side_width : thickness of the side groups [m] (default ``d``; 0 for none).
+    base_thickness : thickness of the fixed base [m] (default ``2 d``); with ``packing``, also
+        one value per packing element (e.g. two of its own diameters: a graded packing).
+    side_width : thickness of the side groups [m] (default ``d``; 0 for none); per packing
+        element as ``base_thickness``.
     packing : ``(x, r)`` to cut instead of the lattice (centres in the local model frame).
     max_elements : refuse models larger than this (the count is known before generating).
     """
@@ -407,8 +451,12 @@ def terrain_model(top, d, *, base_z=None, base_depth=None, layers=(), body="rock
         """Local (x, y) of horizontal model coordinates ((M, 2) in 3-D, (M, 1) in 2-D)."""
         return h if dim == 3 else p0 + h[:, :1] * u
 
-    bt = 2.0 * d if base_thickness is None else float(base_thickness)
-    sw = d if side_width is None else float(side_width)
+    bt = 2.0 * d if base_thickness is None else base_thickness
+    sw = d if side_width is None else side_width
+    per_element = [np.ndim(v) == 1 for v in (bt, sw)]
+    if any(per_element) and packing is None:
+        raise GeometryError("per-element base_thickness / side_width need packing=(x, r)")
+    bt, sw = (np.asarray(v, float) if pe else float(v) for v, pe in zip((bt, sw), per_element))
     if packing is None:
         pats, period, h = _lattice_columns(lat_extent, d, dim)
         tops = [ftop(horiz(p)) for p in pats]
@@ -461,6 +509,11 @@ def terrain_model(top, d, *, base_z=None, base_depth=None, layers=(), body="rock
     else:
         keep = (px[:, -1] <= ptop) & (px[:, -1] - pr >= zb - 1e-9 * d)
         x, rr, top_z = px[keep], pr[keep], ptop[keep]
+        kept = np.flatnonzero(inside)[keep]
+        if per_element[0]:
+            bt = bt[kept]
+        if per_element[1]:
+            sw = sw[kept]
         if len(x) > max_elements:
             raise GeometryError(f"the model would hold {len(x)} elements (> max_elements = "
                                 f"{max_elements})")
@@ -468,7 +521,7 @@ def terrain_model(top, d, *, base_z=None, base_depth=None, layers=(), body="rock
     zc = x[:, -1]
     # ---- masks
     masks = {"base": zc < zb + bt - 1e-9 * d}
-    if sw > 0:
+    if np.any(sw > 0):
         tol = 1e-9 * d
         masks["side_x"] = (x[:, 0] <= lat_extent[0] + sw + tol) | \
             (x[:, 0] >= lat_extent[dim - 1] - sw - tol)
@@ -498,6 +551,8 @@ def terrain_model(top, d, *, base_z=None, base_depth=None, layers=(), body="rock
     info = {"n_elements": int(len(x)), "base_z": zb, "top_min": zmin,
             "top_max": float(top_z.max()) if len(top_z) else zmin,
             "packing": "lattice" if packing is None else "given",
+            # packing=(x, r): the index of each kept element in the given packing
+            "packing_index": None if packing is None else kept,
             "counts": {**{n: int((layer == i).sum()) for i, n in enumerate(names)},
                        **{k: int(v.sum()) for k, v in masks.items()}}}
     return TerrainModel(x=x, r=rr, dim=dim, d=d, layer=layer, names=names, masks=masks,

@@ -1,4 +1,6 @@
-"""``geodem study freeze``: what freezing elements at rest (geodem.fields.freeze) buys and costs.
+"""``geodem study freeze``: what freezing elements at rest (geodem.fields.freeze) buys and costs;
+``geodem study graded``: the same for coarser elements in the deep ground (``model.coarsen``,
+docs/graded.md), at the bottom of this module.
 
 Two scenes, each run with and without the ``freeze`` field:
 
@@ -169,3 +171,109 @@ def describe(rec) -> str:
             f"{rec['on']['skipped_fraction']:.0%} skipped; runout "
             f"{rec['on']['runout_m']:.4g} m with freezing, {rec['off']['runout_m']:.4g} m "
             f"without, {rec['dt_0.995']['runout_m']:.4g} m without at a 0.5 % smaller step")
+
+
+# ============================================================================ graded models
+#: ``geodem study graded``: the landslide as shipped (uniform d, gravity deposition) and graded
+#: (``model.coarsen``: fine band 9 m under the ground and the sliding surface, 15 m transition)
+#: with the coarsest elements 1, 2 and 3 times d (factor 1: the graded builder, no coarsening)
+GRADED_RUNS = {
+    "uniform": [],
+    "graded x1": ["model.coarsen.factor=1"],
+    "graded x2": ["model.coarsen.factor=2"],
+    "graded x3": ["model.coarsen.factor=3"],
+}
+GRADED_KEYS = ("runout_m", "travel_angle_deg", "max_velocity", "deposit_volume_m3", "com_ratio")
+
+
+def graded_run(out_dir, name, seed, workflow="workflows/landslide.yaml") -> dict:
+    """One landslide run of :data:`GRADED_RUNS` ``name`` with packing seed ``seed``."""
+    from geodem.workflow import run_workflow
+
+    sets = GRADED_RUNS[name] + [f"model.seed={seed}", "steps.slide.gif=false"]
+    tag = name.replace(" ", "_")
+    t0 = time.perf_counter()
+    code, s = run_workflow(workflow, Path(out_dir) / f"{tag}_seed{seed}", sets=sets,
+                           echo=False, progress=False, overwrite=True)
+    total = time.perf_counter() - t0
+    if code != 0:
+        raise RuntimeError(f"graded study run {name!r} seed {seed} failed: {s.get('error')}")
+    r = s["results"]["slide"]
+    out = {"run": name, "seed": seed, "total_wall_s": total, "step_wall_s": r["wall_s"],
+           "runout_wall_s": r["runout_wall_s"], "elements": r["elements"],
+           "element_steps": r["element_steps"], "steps": r["settle_steps"] + r["runout_steps"],
+           "slide_elements": r["slide_elements"], "stopped_by": r["stopped_by"],
+           **{k: r[k] for k in GRADED_KEYS}}
+    g = r.get("graded")
+    if g:
+        out.update(fine=g["fine"], transition_elements=g["transition_elements"],
+                   coarse=g["coarse"], packing_s=g["packing_time_s"])
+    return out
+
+
+def graded_summary(runs) -> dict:
+    """Per configuration: means (and sample standard deviations over the seeds) of the results,
+    mean element count, element-steps and wall times; speed-ups against ``uniform``."""
+    out = {}
+    for name in GRADED_RUNS:
+        rs = [r for r in runs if r["run"] == name]
+        if not rs:
+            continue
+        row = {"seeds": [r["seed"] for r in rs]}
+        for k in GRADED_KEYS + ("elements", "element_steps", "step_wall_s", "runout_wall_s",
+                                "total_wall_s"):
+            v = np.array([r[k] for r in rs], float)
+            row[k] = float(v.mean())
+            row[k + "_std"] = float(v.std(ddof=1)) if v.size > 1 else 0.0
+        out[name] = row
+    if "uniform" in out:
+        u = out["uniform"]
+        for row in out.values():
+            row["element_steps_ratio"] = u["element_steps"] / row["element_steps"]
+            row["step_speedup"] = u["step_wall_s"] / row["step_wall_s"]
+            row["total_speedup"] = u["total_wall_s"] / row["total_wall_s"]
+    return out
+
+
+def graded_study(out_dir, seeds=(0, 1, 2), names=None, progress=None) -> dict:
+    """Run :data:`GRADED_RUNS` (or ``names``) for each packing seed; write
+    ``graded_study.json`` and ``graded_study.md`` to ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    runs = []
+    for seed in seeds:
+        for name in (names or GRADED_RUNS):
+            runs.append(graded_run(out, name, seed))
+            if progress:
+                progress(runs[-1])
+    rec = {"runs": runs, "summary": graded_summary(runs)}
+    (out / "graded_study.json").write_text(json.dumps(rec, indent=1))
+    (out / "graded_study.md").write_text(graded_markdown(rec))
+    return rec
+
+
+def graded_markdown(rec) -> str:
+    lines = ["| model | elements | element-steps | step wall [s] | speed-up (element-steps / "
+             "wall) | runout_m | travel_angle_deg | max_velocity | deposit_volume_m3 | "
+             "com_ratio |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for name, row in rec["summary"].items():
+        acc = " | ".join(f"{row[k]:.4g} ± {row[k + '_std']:.2g}" for k in GRADED_KEYS)
+        sp = (f"{row['element_steps_ratio']:.2f} / {row['step_speedup']:.2f}"
+              if "step_speedup" in row else "")
+        lines.append(f"| {name} | {row['elements']:,.0f} | {row['element_steps']:.3g} | "
+                     f"{row['step_wall_s']:.1f} | {sp} | {acc} |")
+    lines += ["", "| model | seed | elements | step wall [s] | total wall [s] | "
+              + " | ".join(GRADED_KEYS) + " |", "|---|---:|---:|---:|---:|"
+              + "---:|" * len(GRADED_KEYS)]
+    for r in rec["runs"]:
+        lines.append(f"| {r['run']} | {r['seed']} | {r['elements']:,} | {r['step_wall_s']:.1f} | "
+                     f"{r['total_wall_s']:.1f} | "
+                     + " | ".join(f"{r[k]:.4g}" for k in GRADED_KEYS) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def describe_graded(r) -> str:
+    return (f"{r['run']} seed {r['seed']}: {r['elements']:,} elements, step "
+            f"{r['step_wall_s']:.1f} s (total {r['total_wall_s']:.1f} s), runout "
+            f"{r['runout_m']:.4g} m, travel angle {r['travel_angle_deg']:.3g} deg")
