@@ -15,7 +15,7 @@ import os
 import numpy as np
 
 from geodem.backends import register
-from geodem.backends.kernels import ROT_FORCE, ROT_MOVE, make_kernels, placeholders
+from geodem.backends.kernels import EXTRA_FORCE, EXTRA_MOVE, make_kernels, placeholders
 from geodem.core.state import BROKEN_BASE
 
 THREADS = 128
@@ -71,21 +71,21 @@ class CupyBackend:
 
     def attach(self, state):
         self.s = state
-        self.k = make_kernels(state.dim, "cuda", state.rotation)
         self.idx = None
         self.dev = {}
         self.push()
 
     def _names(self):
-        return DEVICE_ARRAYS + (ROT_FORCE if self.s.rotation else ())
+        return DEVICE_ARRAYS + tuple(k for k in EXTRA_FORCE if getattr(self.s, k) is not None)
 
     def _blocks(self):
         return (self.s.n + THREADS - 1) // THREADS
 
     def push(self, names=None):
-        if self.s.rotation != getattr(self, "k_rot", None):  # rotation switched on / off
-            self.k = make_kernels(self.s.dim, "cuda", self.s.rotation)
-            self.k_rot = self.s.rotation
+        key = (self.s.rotation, self.s.contact_damping)
+        if key != getattr(self, "k_key", None):  # the kernel variant (may change after attach)
+            self.k = make_kernels(self.s.dim, "cuda", *key)
+            self.k_key = key
             names = None
         names = self._names() if names is None else names
         for k in names:
@@ -109,16 +109,16 @@ class CupyBackend:
 
             self.view = {k: cuda.as_cuda_array(v) for k, v in self.dev.items()}
             self.view["e_el"] = cuda.as_cuda_array(self.e_el)
-        if not self.s.rotation:
-            ph = placeholders(self.xp)
-            if self.xp is not np:  # pragma: no cover
-                from numba import cuda
+        ph = placeholders(self.xp)
+        if self.xp is not np:  # pragma: no cover
+            from numba import cuda
 
-                ph = {k: cuda.as_cuda_array(v) for k, v in ph.items()}
-            for k in ROT_FORCE:
+            ph = {k: cuda.as_cuda_array(v) for k, v in ph.items()}
+        for k in EXTRA_FORCE:  # options that are off
+            if k not in self.view:
                 self.view[k] = ph[k]
-        self.rot_move = tuple(self.view[k] for k in ROT_MOVE)
-        self.rot_force = tuple(self.view[k] for k in ROT_FORCE)
+        self.extra_move = tuple(self.view[k] for k in EXTRA_MOVE)
+        self.extra_force = tuple(self.view[k] for k in EXTRA_FORCE)
 
     def pull(self, names=None):
         names = self._names() if names is None else names
@@ -164,7 +164,7 @@ class CupyBackend:
     def move(self, dt):
         d = self.view
         self._launch(self.k.move, self.k.move_idx, d["x"], d["v"], d["a"], d["dx"], d["free"],
-                     d["fload"], d["m"], d["eta"], d["q_visc"], d["w_ext"], dt, *self.rot_move)
+                     d["fload"], d["m"], d["eta"], d["q_visc"], d["w_ext"], dt, *self.extra_move)
 
     def force(self, dt, code_t, code_s):
         s, d = self.s, self.view
@@ -174,11 +174,11 @@ class CupyBackend:
                      d["eta"], d["nbr"], d["cstate"], d["fs"],
                      d["brate"], d["q_visc"], d["q_break_n"], d["q_break_s"], d["q_fric"],
                      d["w_ext"], float(g[0]), float(g[1]), float(g[2]) if s.dim == 3 else 0.0,
-                     dt, code_t, code_s, int(s.hertz), *self.rot_force)
+                     dt, code_t, code_s, int(s.hertz), *self.extra_force)
 
     def elastic_energy(self):
         d = self.view
         self.k.energy[self._blocks(), THREADS](d["x"], d["props"], d["nbr"],
                                                d["cstate"], d["fs"], int(self.s.hertz),
-                                               d["e_el"], self.rot_force[-1])
+                                               d["e_el"], self.extra_force[-1])
         return self.e_el if self.xp is np else self.e_el.get()

@@ -24,8 +24,11 @@ import types
 from geodem.core import law
 
 
-def _bodies(DIM, ROT, jit_device):
+def _bodies(DIM, ROT, DAMP, jit_device):
     """Build the per-element bodies for dimension ``DIM`` with the device-function decorator.
+
+    ``DAMP`` (compile-time): contacts in compression get the normal dashpot of
+    ``geodem.core.state.enable_contact_damping`` (damping ratio in ``props`` column 7).
 
     ``ROT`` (compile-time): the elements also turn (``geodem.core.state.enable_rotation``); the
     rotation arrays ``w, wa, dth, rfree, inertia, mr`` are then read and written, otherwise
@@ -52,19 +55,20 @@ def _bodies(DIM, ROT, jit_device):
 
     dof_free = jit_device(dof_free)
 
-    def dof_step(free, v, a, fc, fg, fl, m, eta, dt, ddx):
-        # one degree of freedom after the force pass: a free one moves under the contact force
-        # fc plus gravity fg and load fl (returns v, a, viscous heat, 0); a fixed or kinematic
-        # one keeps v and stores the reaction fc/m, whose work -fc ddx/2 it returns
+    def dof_step(free, v, a, fc, m, eta, dt, ddx):
+        # one rotational degree of freedom after the force pass: a free one turns under the
+        # torque fc (returns w, w', viscous heat, 0); a fixed or prescribed one keeps w and
+        # stores the reaction fc/I, whose work -fc ddx/2 it returns. (The translational loop
+        # spells the same out inline: see geodem.core.law.tangent on why.)
         if free != 0.0:
-            vn, an, dq = dof_free(v, a, fc + fg + fl, m, eta, dt, ddx)
+            vn, an, dq = dof_free(v, a, fc, m, eta, dt, ddx)
             return vn, an, dq, 0.0
         return v, fc / m, 0.0, -0.5 * fc * ddx
 
     dof_step = jit_device(dof_step)
 
     def move_body(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
-                  w, wa, dth, rfree, inertia):
+                  w, wa, dth, rfree, inertia, fdash):
         qv = 0.0
         we = 0.0
         for d in range(DIM):
@@ -77,6 +81,8 @@ def _bodies(DIM, ROT, jit_device):
                 we -= 0.5 * m[i] * a[i, d] * ddx
             dx[i, d] = ddx
             x[i, d] += ddx
+            if DAMP:
+                qv -= 0.5 * fdash[i, d] * ddx
         if ROT:
             # the same Verlet half step for the rotation; damping eta I/m (same decay time)
             ii = inertia[i]
@@ -95,7 +101,7 @@ def _bodies(DIM, ROT, jit_device):
     def force_body(i, x, v, a, dx, free, fload, props, m, eta,
                    nbr, cstate, fs, brate, q_visc, q_bn, q_bs, q_f, w_ext,
                    g0, g1, g2, dt, code_t, code_s, hertz,
-                   w, wa, dth, rfree, inertia, mr):
+                   w, wa, dth, rfree, inertia, fdash, mr):
         xi0 = x[i, 0]
         xi1 = x[i, 1]
         di0 = dx[i, 0]
@@ -118,6 +124,9 @@ def _bodies(DIM, ROT, jit_device):
         qn = 0.0
         qs = 0.0
         qf = 0.0
+        d0 = 0.0  # dashpot force (DAMP)
+        d1 = 0.0
+        d2 = 0.0
         t0 = 0.0  # torque [N m] (2-D: only t2, about z)
         t1 = 0.0
         t2 = 0.0
@@ -175,6 +184,21 @@ def _bodies(DIM, ROT, jit_device):
             qn += eqn
             qs += eqs
             qf += eqf
+            if DAMP:
+                # normal dashpot c (v_j - v_i).n on a contact in compression; an unbonded
+                # contact may resist separation but never pull
+                zeta = min(props[i, 7], props[j, 7])
+                if fn < 0.0 and zeta > 0.0 and dt > 0.0:
+                    mj = m[j]
+                    c = 2.0 * zeta * math.sqrt(m[i] * mj / (m[i] + mj) * series(kni, props[j, 1]))
+                    # the step's mean relative velocity du/dt (the end-of-step velocities are
+                    # not known yet): first-order accurate in dt
+                    fd = c * (nx * rx + ny * ry + nz * ez) / dt
+                    if csn != 1 and fd > -fn:
+                        fd = -fn
+                    d0 += fd * nx
+                    d1 += fd * ny
+                    d2 += fd * nz
             if ROT:
                 # the shear force acts at the contact point R_i n; rolling resistance on top
                 rs = series(ri, rj)
@@ -211,6 +235,18 @@ def _bodies(DIM, ROT, jit_device):
         mi = m[i]
         etai = eta[i]
         qv = 0.0
+        if DAMP:
+            # the dashpot force acts over half of this step and half of the next (trapezoid, as
+            # velocity Verlet integrates it): heat -F_d . dx / 2 now, the rest in move
+            f0 += d0
+            f1 += d1
+            f2 += d2
+            qv -= 0.5 * (d0 * dx[i, 0] + d1 * dx[i, 1])
+            fdash[i, 0] = d0
+            fdash[i, 1] = d1
+            if DIM == 3:
+                qv -= 0.5 * d2 * dx[i, 2]
+                fdash[i, 2] = d2
         we = 0.0
         for d in range(DIM):
             if d == 0:
@@ -222,12 +258,15 @@ def _bodies(DIM, ROT, jit_device):
             else:
                 fc = f2
                 g = g2
-            vn, an, dq, dw = dof_step(free[i, d], v[i, d], a[i, d], fc, mi * g, fload[i, d], mi,
-                                      etai, dt, dx[i, d])
-            v[i, d] = vn
-            a[i, d] = an
-            qv += dq
-            we += dw
+            if free[i, d] != 0.0:
+                vn, an, dq = dof_free(v[i, d], a[i, d], fc + mi * g + fload[i, d], mi, etai, dt,
+                                      dx[i, d])
+                v[i, d] = vn
+                a[i, d] = an
+                qv += dq
+            else:
+                a[i, d] = fc / mi
+                we -= 0.5 * fc * dx[i, d]
         if ROT:
             ii = inertia[i]
             etar = etai * ii / mi
@@ -238,8 +277,8 @@ def _bodies(DIM, ROT, jit_device):
                     tc = t0
                 else:
                     tc = t1
-                wn, an, dq, dw = dof_step(rfree[i, d], w[i, d], wa[i, d], tc, 0.0, 0.0, ii, etar,
-                                          dt, dth[i, d])
+                wn, an, dq, dw = dof_step(rfree[i, d], w[i, d], wa[i, d], tc, ii, etar, dt,
+                                          dth[i, d])
                 w[i, d] = wn
                 wa[i, d] = an
                 qv += dq
@@ -277,17 +316,17 @@ def _bodies(DIM, ROT, jit_device):
 
 
 @functools.lru_cache(maxsize=None)
-def make_kernels(dim: int, target: str, rotation: bool = False):
-    """Compile the kernels for ``dim`` in {2, 3}, ``target`` in {cpu, cuda} and translation-only
-    or rotating elements: a namespace with ``move, force, energy`` over every element and
+def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = False):
+    """Compile the kernels for ``dim`` in {2, 3}, ``target`` in {cpu, cuda}, translation-only
+    or rotating elements, without or with the contact dashpot: a namespace with ``move, force, energy`` over every element and
     ``move_idx, force_idx`` over the elements of an index array (the first argument).
 
-    Argument order: ``move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt, *ROT_MOVE)``,
+    Argument order: ``move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt, *EXTRA_MOVE)``,
     ``force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs, brate, q_visc, q_bn,
-    q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz, *ROT_FORCE)``,
-    ``energy(x, props, nbr, cstate, fs, hertz, e_el, mr)`` with ``ROT_MOVE = (w, wa, dth,
-    rfree, inertia)`` and ``ROT_FORCE = ROT_MOVE + (mr,)`` (placeholders without rotation:
-    :func:`placeholders`).
+    q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz, *EXTRA_FORCE)``,
+    ``energy(x, props, nbr, cstate, fs, hertz, e_el, mr)`` with ``EXTRA_MOVE = (w, wa, dth,
+    rfree, inertia, fdash)`` and ``EXTRA_FORCE = EXTRA_MOVE + (mr,)``: the arrays of the
+    options (placeholders for an option that is off: :func:`placeholders`).
 
     CPU kernels take ``n`` implicitly and loop with ``prange``; CUDA kernels are launched as
     ``kernel[blocks, threads](...)`` with one thread per element.
@@ -295,32 +334,34 @@ def make_kernels(dim: int, target: str, rotation: bool = False):
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim}")
     rot = bool(rotation)
+    damp = bool(damping)
     if target == "cpu":
         import numba
         from numba import prange
 
         dev = functools.partial(numba.njit, fastmath=True, error_model="numpy", forceinline=True,
                                 cache=False)
-        move_b, force_b, energy_b = _bodies(dim, rot, lambda f: dev(f))
+        move_b, force_b, energy_b = _bodies(dim, rot, damp, lambda f: dev(f))
         move_b = dev(move_b)
         force_b = dev(force_b)
         energy_b = dev(energy_b)
         par = numba.njit(parallel=True, fastmath=True, error_model="numpy", cache=False)
 
         @par
-        def move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt, w, wa, dth, rfree, inertia):
+        def move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+                 w, wa, dth, rfree, inertia, fdash):
             for i in prange(x.shape[0]):
                 move_b(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
-                       w, wa, dth, rfree, inertia)
+                       w, wa, dth, rfree, inertia, fdash)
 
         @par
         def force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                   brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz,
-                  w, wa, dth, rfree, inertia, mr):
+                  w, wa, dth, rfree, inertia, fdash, mr):
             for i in prange(x.shape[0]):
                 force_b(i, x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                         fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                        code_s, hertz, w, wa, dth, rfree, inertia, mr)
+                        code_s, hertz, w, wa, dth, rfree, inertia, fdash, mr)
 
         @par
         def energy(x, props, nbr, cstate, fs, hertz, e_el, mr):
@@ -331,19 +372,19 @@ def make_kernels(dim: int, target: str, rotation: bool = False):
         # geodem.fields.freeze)
         @par
         def move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
-                     w, wa, dth, rfree, inertia):
+                     w, wa, dth, rfree, inertia, fdash):
             for k in prange(idx.shape[0]):
                 move_b(idx[k], x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
-                       w, wa, dth, rfree, inertia)
+                       w, wa, dth, rfree, inertia, fdash)
 
         @par
         def force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                       brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s,
-                      hertz, w, wa, dth, rfree, inertia, mr):
+                      hertz, w, wa, dth, rfree, inertia, fdash, mr):
             for k in prange(idx.shape[0]):
                 force_b(idx[k], x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                         fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                        code_s, hertz, w, wa, dth, rfree, inertia, mr)
+                        code_s, hertz, w, wa, dth, rfree, inertia, fdash, mr)
 
         return types.SimpleNamespace(move=move, force=force, energy=energy,
                                      move_idx=move_idx, force_idx=force_idx)
@@ -354,25 +395,26 @@ def make_kernels(dim: int, target: str, rotation: bool = False):
         from numba import cuda
 
         dev = lambda f: cuda.jit(device=True)(f)  # noqa: E731
-        move_b, force_b, energy_b = _bodies(dim, rot, dev)
+        move_b, force_b, energy_b = _bodies(dim, rot, damp, dev)
         move_b, force_b, energy_b = dev(move_b), dev(force_b), dev(energy_b)
 
         @cuda.jit
-        def move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt, w, wa, dth, rfree, inertia):
+        def move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+                 w, wa, dth, rfree, inertia, fdash):
             i = cuda.grid(1)
             if i < x.shape[0]:
                 move_b(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
-                       w, wa, dth, rfree, inertia)
+                       w, wa, dth, rfree, inertia, fdash)
 
         @cuda.jit
         def force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                   brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz,
-                  w, wa, dth, rfree, inertia, mr):
+                  w, wa, dth, rfree, inertia, fdash, mr):
             i = cuda.grid(1)
             if i < x.shape[0]:
                 force_b(i, x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                         fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                        code_s, hertz, w, wa, dth, rfree, inertia, mr)
+                        code_s, hertz, w, wa, dth, rfree, inertia, fdash, mr)
 
         @cuda.jit
         def energy(x, props, nbr, cstate, fs, hertz, e_el, mr):
@@ -382,37 +424,37 @@ def make_kernels(dim: int, target: str, rotation: bool = False):
 
         @cuda.jit
         def move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
-                     w, wa, dth, rfree, inertia):
+                     w, wa, dth, rfree, inertia, fdash):
             k = cuda.grid(1)
             if k < idx.shape[0]:
                 move_b(idx[k], x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
-                       w, wa, dth, rfree, inertia)
+                       w, wa, dth, rfree, inertia, fdash)
 
         @cuda.jit
         def force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                       brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s,
-                      hertz, w, wa, dth, rfree, inertia, mr):
+                      hertz, w, wa, dth, rfree, inertia, fdash, mr):
             k = cuda.grid(1)
             if k < idx.shape[0]:
                 force_b(idx[k], x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                         fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                        code_s, hertz, w, wa, dth, rfree, inertia, mr)
+                        code_s, hertz, w, wa, dth, rfree, inertia, fdash, mr)
 
         return types.SimpleNamespace(move=move, force=force, energy=energy,
                                      move_idx=move_idx, force_idx=force_idx)
     raise ValueError(f"unknown kernel target {target!r}; allowed: cpu, cuda")
 
 
-ROT_MOVE = ("w", "wa", "dth", "rfree", "inertia")
-ROT_FORCE = ROT_MOVE + ("mr",)
+EXTRA_MOVE = ("w", "wa", "dth", "rfree", "inertia", "fdash")  # the options' arrays
+EXTRA_FORCE = EXTRA_MOVE + ("mr",)
 
 
 def placeholders(xp=None):
-    """Stand-ins for the rotation arrays of a translation-only model (never read): one tiny
-    allocation per backend, not per step. Returns a dict name -> array."""
+    """Stand-ins for the arrays of options that are off (never read): one tiny allocation per
+    backend, not per step. Returns a dict name -> array."""
     import numpy as np
 
     xp = np if xp is None else xp
     z2 = xp.zeros((1, 1))
-    return {"w": z2, "wa": z2, "dth": z2, "rfree": z2, "inertia": xp.zeros(1),
+    return {"w": z2, "wa": z2, "dth": z2, "rfree": z2, "inertia": xp.zeros(1), "fdash": z2,
             "mr": xp.zeros((1, 1, 1))}

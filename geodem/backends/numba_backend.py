@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from geodem.backends import register
-from geodem.backends.kernels import ROT_FORCE, ROT_MOVE, make_kernels, placeholders
+from geodem.backends.kernels import EXTRA_FORCE, EXTRA_MOVE, make_kernels, placeholders
 from geodem.core.checks import any_at_least
 from geodem.core.neighbors import _max_disp_speed
 from geodem.core.state import BROKEN_BASE
@@ -55,23 +55,19 @@ class HostBackend:
 class NumbaBackend(HostBackend):
     def attach(self, state):
         super().attach(state)
-        self.k = make_kernels(state.dim, "cpu", state.rotation)
-        self.k_rot = state.rotation
+        self.k_key = None
         self.idx = None
-        ph = placeholders()
-        self._ph_move = tuple(ph[k] for k in ROT_MOVE)
-        self._ph_force = tuple(ph[k] for k in ROT_FORCE)
+        self._ph = placeholders()
 
-    def _rot(self, names):
-        """The rotation arrays for the kernels (looked up per call: a rebuild may replace
-        ``mr``); placeholders for a translation-only model."""
+    def _extra(self, names):
+        """The arrays of the options (rotation, contact damping) for the kernels, looked up per
+        call (a rebuild may replace ``mr``); placeholders for an option that is off."""
         s = self.s
-        if s.rotation != self.k_rot:  # rotation switched on (or off) after attach
-            self.k = make_kernels(s.dim, "cpu", s.rotation)
-            self.k_rot = s.rotation
-        if not s.rotation:
-            return self._ph_move if names is ROT_MOVE else self._ph_force
-        return tuple(getattr(s, k) for k in names)
+        if (s.rotation, s.contact_damping) != self.k_key:  # the variant (changes after attach)
+            self.k_key = (s.rotation, s.contact_damping)
+            self.k = make_kernels(s.dim, "cpu", *self.k_key)
+        ph = self._ph
+        return tuple(ph[k] if getattr(s, k) is None else getattr(s, k) for k in names)
 
     def set_active(self, idx=None):
         """Step only the elements in ``idx`` (None: every element); see geodem.fields.freeze."""
@@ -80,7 +76,7 @@ class NumbaBackend(HostBackend):
     def move(self, dt):
         s = self.s
         args = (s.x, s.v, s.a, s.dx, s.free, s.fload, s.m, s.eta, s.q_visc, s.w_ext, dt,
-                *self._rot(ROT_MOVE))
+                *self._extra(EXTRA_MOVE))
         if self.idx is None:
             self.k.move(*args)
         else:
@@ -92,7 +88,7 @@ class NumbaBackend(HostBackend):
         args = (s.x, s.v, s.a, s.dx, s.free, s.fload, s.props, s.m, s.eta, s.nbr, s.cstate,
                 s.fs, s.brate, s.q_visc, s.q_break_n, s.q_break_s, s.q_fric, s.w_ext,
                 g[0], g[1], g[2] if s.dim == 3 else 0.0, dt, code_t, code_s, int(s.hertz),
-                *self._rot(ROT_FORCE))
+                *self._extra(EXTRA_FORCE))
         if self.idx is None:
             self.k.force(*args)
         else:
@@ -100,6 +96,6 @@ class NumbaBackend(HostBackend):
 
     def elastic_energy(self):
         s = self.s
-        self.k.energy(s.x, s.props, s.nbr, s.cstate, s.fs, int(s.hertz), self.e_el,
-                      self._rot(ROT_FORCE)[-1])
+        mr = self._extra(EXTRA_FORCE)[-1]
+        self.k.energy(s.x, s.props, s.nbr, s.cstate, s.fs, int(s.hertz), self.e_el, mr)
         return self.e_el

@@ -37,6 +37,8 @@ class NumpyBackend(HostBackend):
         s.w_ext += np.where(fr, s.fload * ddx, -(0.5 * s.m[:, None] * s.a * ddx)).sum(axis=1)
         s.dx[:] = ddx
         s.x += ddx
+        if s.contact_damping:  # second half of the last dashpot force's heat
+            s.q_visc -= 0.5 * (s.fdash * ddx).sum(axis=1)
         if s.rotation:
             rf = s.rfree != 0.0
             ii = s.inertia[:, None]
@@ -138,6 +140,12 @@ class NumpyBackend(HostBackend):
         s.cstate[:] = np.where(tens, code_t, np.where(shr, code_s, s.cstate))
         fc = np.stack([_colsum(np.where(valid, fn * n[..., c] + new[..., c], 0.0))
                        for c in range(s.dim)], axis=1)
+        if s.contact_damping:
+            fd = self._dashpot(valid, j, n, rel, fn, kn, s.cstate, dt)
+            fdn = np.stack([_colsum(fd * n[..., c]) for c in range(s.dim)], axis=1)
+            fc = fc + fdn
+            s.q_visc -= 0.5 * (fdn * s.dx).sum(axis=1)
+            s.fdash[:] = fdn
         s.q_break_n += 0.5 * _colsum(qn)
         s.q_break_s += 0.5 * _colsum(qs)
         s.q_fric += 0.5 * _colsum(qf)
@@ -160,6 +168,19 @@ class NumpyBackend(HostBackend):
             s.w_ext -= np.where(rf, 0.0, 0.5 * torque * s.dth).sum(axis=1)
             s.wa[:] = np.where(rf, (torque - etar * wn) / ii, torque / ii)
             s.w[:] = np.where(rf, wn, s.w)
+
+    def _dashpot(self, valid, j, n, rel, fn, kn, cstate_new, dt):
+        """Normal dashpot force (tension +, (N, W)) of the contacts in compression
+        (geodem.core.state.enable_contact_damping, whole-matrix form)."""
+        s = self.s
+        zeta = np.minimum(s.zeta_n[:, None], s.zeta_n[j])
+        on = valid & (fn < 0.0) & (zeta > 0.0) & (dt > 0.0)
+        mi, mj = s.m[:, None], s.m[j]
+        c = 2.0 * zeta * np.sqrt(mi * mj / (mi + mj) * kn)
+        pr = (n * rel).sum(-1)
+        fd = c * pr / (dt if dt > 0.0 else 1.0)
+        fd = np.where((cstate_new != BONDED) & (fd > -fn), -fn, fd)
+        return np.where(on, fd, 0.0)
 
     def _rolling(self, valid, j, n, fn, shear):
         """Torques (N, nr) of the shear forces and the rolling moments, and the rolling heat

@@ -454,9 +454,10 @@ def subset_state(state: State, keep, rebuild: bool = True) -> State:
         if idx.shape != (state.n,):
             raise ValueError(f"mask must have shape ({state.n},), got {idx.shape}")
         idx = np.flatnonzero(idx)
-    if state.rotation:
-        raise ValueError("this model already has rotational degrees of freedom; build the model "
-                         "first and call geodem.core.state.enable_rotation last")
+    if state.rotation or state.contact_damping:
+        raise ValueError("this model already has rotating elements or contact damping; build the "
+                         "model first and call enable_rotation / enable_contact_damping "
+                         "(geodem.core.state) last")
     idx = np.asarray(idx, dtype=np.int64)
     if idx.size and (idx.min() < 0 or idx.max() >= state.n):
         raise ValueError("subset indices out of range")

@@ -40,9 +40,10 @@ def append_elements(state: State, x, r, m, *, kn, ks=None, mu=0.0, group: str | 
     ``mu``, no bond strength. They join the new group ``group`` (if given) and are fixed in
     every degree of freedom when ``fixed``. Rows, time and books are carried over; the added
     elements have empty rows, so call :func:`geodem.core.neighbors.build_rows` afterwards."""
-    if state.rotation:
-        raise ValueError("this model already has rotational degrees of freedom; build the model "
-                         "first and call geodem.core.state.enable_rotation last")
+    if state.rotation or state.contact_damping:
+        raise ValueError("this model already has rotating elements or contact damping; build the "
+                         "model first and call enable_rotation / enable_contact_damping "
+                         "(geodem.core.state) last")
     x = np.atleast_2d(np.asarray(x, float))
     if x.shape[1] != state.dim:
         raise ValueError(f"positions have {x.shape[1]} columns, the state is {state.dim}-D")

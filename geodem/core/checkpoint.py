@@ -15,7 +15,8 @@ import numpy as np
 
 from geodem.core.state import State
 
-_SCALARS = ("dim", "thickness", "hertz", "dt", "step", "time", "skin", "e0")
+_SCALARS = ("dim", "thickness", "hertz", "contact_damping", "dt", "step", "time", "skin", "e0")
+_DEFAULTS = {"contact_damping": False}  # scalars added after the first checkpoints
 
 
 def save_state(state: State, path, extra: dict | None = None,
@@ -31,6 +32,7 @@ def save_state(state: State, path, extra: dict | None = None,
     arrays["gravity"] = state.gravity
     meta = {k: getattr(state, k) for k in _SCALARS}
     meta["hertz"] = bool(meta["hertz"])
+    meta["contact_damping"] = bool(meta["contact_damping"])
     meta["groups"] = state.groups
     meta["extra"] = extra or {}
     d = os.path.dirname(os.path.abspath(path))
@@ -54,7 +56,7 @@ def load_state(path, with_arrays: bool = False):
         meta = json.loads(bytes(z["__meta__"]).decode())
         kw = {k: z[k].copy() for k in z.files if k in names}
         more = {k: z[k].copy() for k in z.files if k not in names and k != "__meta__"}
-    kw.update({k: meta[k] for k in _SCALARS})
+    kw.update({k: meta.get(k, _DEFAULTS.get(k)) for k in _SCALARS})
     kw["groups"] = meta["groups"]
     if with_arrays:
         return State(**kw), meta["extra"], more

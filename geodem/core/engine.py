@@ -44,6 +44,10 @@ def validate_state(state) -> None:
               ("mu_r", 0.0, True))
     if state.rotation:
         checks = checks + (("inertia", 0.0, False),)
+    if state.contact_damping and (state.fdash is None or state.fdash.shape != state.x.shape):
+        raise ValueError("contact_damping is on but the state has no dashpot forces; switch it "
+                         "on with geodem.core.state.enable_contact_damping")
+    checks = checks + (("zeta_n", 0.0, True),)
     for name, lo, allow_zero in checks:
         arr = getattr(state, name)
         ok = np.isfinite(arr) & ((arr >= lo) if allow_zero else (arr > lo))

@@ -73,7 +73,9 @@ def spring_energy(f2, k):
 
 def tangent(nx, ny, nz, ax, ay, az):
     """Split ``a`` along the unit normal ``n``: returns the tangential part ``a - (a.n) n`` and
-    ``a.n``."""
+    ``a.n``. (:func:`contact` spells the same steps out: restructuring it changes the order of
+    floating-point operations the compiler picks under fastmath, and the translation-only
+    results are kept bit for bit.)"""
     p = nx * ax + ny * ay + nz * az
     return ax - p * nx, ay - p * ny, az - p * nz, p
 
@@ -116,10 +118,16 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
 
     # rotate the stored spring onto the current tangent plane; the projection's energy loss
     # (|Fs|^2 - |Fs_rot|^2)/(2Ks) = p^2/(2Ks) is booked as friction heat
-    sx, sy, sz, p = tangent(nx, ny, nz, sx, sy, sz)
+    p = nx * sx + ny * sy + nz * sz
+    sx = sx - p * nx
+    sy = sy - p * ny
+    sz = sz - p * nz
     qf = p * p * hks
     # trial shear force from the tangential relative displacement u of the step
-    ux, uy, uz, pr = tangent(nx, ny, nz, rx, ry, rz)
+    pr = nx * rx + ny * ry + nz * rz
+    ux = rx - pr * nx
+    uy = ry - pr * ny
+    uz = rz - pr * nz
     tx = sx + ks * ux
     ty = sy + ks * uy
     tz = sz + ks * uz
@@ -163,8 +171,12 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
     lim = -mu * fn
     if tr2 > lim * lim:
         # Coulomb sliding: heat = mean force x slip, (Fs_rot + Fs_new)/2 . (Fs_trial - Fs_new)/Ks
-        nxs, nys, nzs, dq = slip(sx, sy, sz, tx, ty, tz, lim / math.sqrt(tr2), hks)
-        return fn, nx, ny, nz, nxs, nys, nzs, cs, qn, qs, qf + dq
+        scale = lim / math.sqrt(tr2)
+        nxs = tx * scale
+        nys = ty * scale
+        nzs = tz * scale
+        qf += ((sx + nxs) * (tx - nxs) + (sy + nys) * (ty - nys) + (sz + nzs) * (tz - nzs)) * hks
+        return fn, nx, ny, nz, nxs, nys, nzs, cs, qn, qs, qf
     return fn, nx, ny, nz, tx, ty, tz, cs, qn, qs, qf
 
 

@@ -13,7 +13,7 @@ Element arrays (SI units)
     eta          (N,)     float64   global (mass) damping coefficient [kg/s]
     props        (N, 8)   float64   the parameters a neighbour's contact needs, packed so that one
                                     cache line holds them all (the kernels gather them per contact):
-                                    columns r, kn, ks, xb, fs0, mu, mu_r (+1 spare). Read and write
+                                    columns r, kn, ks, xb, fs0, mu, mu_r, zeta_n. Read and write
                                     them through the named column views:
     r            (N,)     view      radius [m]
     kn, ks       (N,)     view      element normal / shear spring stiffness [N/m]
@@ -21,6 +21,8 @@ Element arrays (SI units)
     fs0          (N,)     view      element initial shear resistance [N]
     mu           (N,)     view      element friction coefficient [-]
     mu_r         (N,)     view      element rolling-resistance coefficient [-] (rotation only)
+    zeta_n       (N,)     view      element normal contact damping ratio [-] (used only when
+                                    ``contact_damping``; see :func:`enable_contact_damping`)
     free         (N, dim) float64   1.0 for a free degree of freedom, 0.0 for a fixed or
                                     kinematic one (moved at its velocity ``v``)
     fload        (N, dim) float64   external load per element [N] (gravity is separate)
@@ -44,6 +46,9 @@ translate only, PHYSICS.md section 1). ``nr`` = 1 in 2-D (about z), 3 in 3-D.
     inertia      (N,)     float64   moment of inertia [kg m^2]
     mr           (N, W, nr) float64 rolling-resistance moment acting on the row's element [N m]
 
+Contact damping (optional, ``None`` unless :func:`enable_contact_damping` was called)
+    fdash        (N, dim) float64   net normal-dashpot force of the last force pass [N]
+
 Accumulated energy [J] per element (half of each contact's share goes to each side)
     q_visc, q_break_n, q_break_s, q_fric, w_ext   (N,) float64
 """
@@ -55,12 +60,13 @@ import numpy as np
 
 ELEMENT_VEC = ("x", "v", "a", "dx", "x_ref", "free", "fload")
 ELEMENT_SCALAR = ("m", "eta")
-PROPS = ("r", "kn", "ks", "xb", "fs0", "mu", "mu_r")  # columns of ``props``
+PROPS = ("r", "kn", "ks", "xb", "fs0", "mu", "mu_r", "zeta_n")  # columns of ``props``
 PROPS_WIDTH = 8
 ACCUMULATORS = ("q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext")
 ROW_ARRAYS = ("nbr", "cstate", "fs", "brate")
 ROT_ELEMENT = ("w", "wa", "dth", "rfree", "inertia")  # present only with rotation
 ROT_ROWS = ("mr",)
+DAMP_ELEMENT = ("fdash",)  # present only with contact damping
 
 # contact state codes
 UNBONDED = 0
@@ -114,10 +120,14 @@ class State:
     rfree: np.ndarray | None = None
     inertia: np.ndarray | None = None
     mr: np.ndarray | None = None
+    # contact damping: the net dashpot force of the last force pass (its heat is booked over
+    # this step and the next)
+    fdash: np.ndarray | None = None
     gravity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     groups: dict = field(default_factory=dict)  # name -> group id
     thickness: float = 0.0  # 2-D disc thickness [m] (information; masses are given)
     hertz: bool = False  # Hertz law for unbonded contacts in compression
+    contact_damping: bool = False  # normal dashpot on contacts in compression (zeta_n)
     dt: float = 0.0
     step: int = 0
     time: float = 0.0
@@ -146,6 +156,8 @@ class State:
         names = ELEMENT_VEC + ELEMENT_SCALAR + ("props", "group") + ROW_ARRAYS + ACCUMULATORS
         if self.rotation:
             names = names + ROT_ELEMENT + ROT_ROWS
+        if self.fdash is not None:
+            names = names + DAMP_ELEMENT
         return names
 
     def row_array_names(self):
@@ -190,7 +202,7 @@ for _c, _name in enumerate(PROPS):
 
 
 def new_state(x, r, m, *, dim=None, width=16, kn=0.0, ks=0.0, xb=0.0, fs0=0.0, mu=0.0,
-              eta=0.0, mu_r=0.0) -> State:
+              eta=0.0, mu_r=0.0, zeta_n=0.0) -> State:
     """Allocate a state for elements at ``x`` (N, dim) with radii ``r`` and masses ``m``.
 
     Scalar parameters are broadcast to all elements. Rows start empty (``nbr = -1``).
@@ -206,7 +218,7 @@ def new_state(x, r, m, *, dim=None, width=16, kn=0.0, ks=0.0, xb=0.0, fs0=0.0, m
         return np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))).copy()
 
     props = np.zeros((n, PROPS_WIDTH))
-    for c, v in enumerate((r, kn, ks, xb, fs0, mu, mu_r)):
+    for c, v in enumerate((r, kn, ks, xb, fs0, mu, mu_r, zeta_n)):
         props[:, c] = np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))
 
     z = lambda: np.zeros((n, d))  # noqa: E731
@@ -253,4 +265,38 @@ def enable_rotation(state: State, mu_r=None, inertia=None) -> State:
     moving = (state.free != 0.0).any(axis=1)
     state.rfree = np.repeat(moving.astype(np.float64)[:, None], nr, axis=1)
     state.mr = np.zeros((n, state.width, nr))
+    return state
+
+
+def damping_ratio(restitution: float) -> float:
+    """Damping ratio of a linear spring-dashpot contact with coefficient of restitution ``e``:
+    ``zeta = -ln e / sqrt(pi^2 + ln^2 e)`` (e in (0, 1]; e = 1 gives 0)."""
+    e = float(restitution)
+    if not (0.0 < e <= 1.0):
+        raise ValueError(f"coefficient of restitution {restitution!r}: allowed 0 < e <= 1")
+    le = np.log(e)
+    return float(-le / np.sqrt(np.pi ** 2 + le * le))
+
+
+def enable_contact_damping(state: State, restitution=None, zeta_n=None) -> State:
+    """Switch on the normal dashpot of contacts in compression (in place; returns ``state``).
+
+    MatDEM damps only the absolute motion of elements (global damping); a collision of two
+    elements is then perfectly elastic. This option adds to each contact in compression the
+    normal force ``c (du . n)/dt`` with ``c = 2 zeta sqrt(m* Kn)``, ``m* = m_i m_j/(m_i + m_j)``,
+    ``zeta = min(zeta_i, zeta_j)``, ``du . n`` the normal relative displacement of the step
+    (so ``du/dt`` is the mid-step relative velocity), capped so that an unbonded contact never
+    pulls. A binary collision then rebounds with restitution ``e`` (:func:`damping_ratio`). Give
+    ``restitution`` (scalar) or ``zeta_n`` (scalar or (N,)); the heat is booked as viscous.
+    """
+    if (restitution is None) == (zeta_n is None):
+        raise ValueError("give exactly one of restitution and zeta_n")
+    z = damping_ratio(restitution) if zeta_n is None else zeta_n
+    z = np.broadcast_to(np.asarray(z, dtype=np.float64), (state.n,))
+    if not (np.isfinite(z).all() and (z >= 0.0).all()):
+        raise ValueError("zeta_n must be finite and >= 0")
+    state.zeta_n = z
+    state.contact_damping = True
+    if state.fdash is None:
+        state.fdash = np.zeros((state.n, state.dim))
     return state

@@ -199,6 +199,6 @@ def test_bad_rotation_input_is_refused():
     with pytest.raises(ValueError, match="mu_r of element 0.*>= 0"):
         Simulation(st, backend="numba")
     from geodem.build.walls import append_elements
-    with pytest.raises(ValueError, match="enable_rotation last"):
+    with pytest.raises(ValueError, match="enable_rotation / enable_contact_damping"):
         append_elements(disc_on_floor(2, 0.0), np.zeros((1, 2)), r=R, m=M, kn=1.0)
     assert math.isfinite(R)
