@@ -177,6 +177,18 @@ class GranularColumn(ModelBase):
     channel_length: float = F(2.5, ge=1.2, le=10,
                               description="Floor length beyond the gate / the runout of the "
                                           "reference law (the end wall stands there)")
+    rotation: bool = F(False, description="Give the elements rotational degrees of freedom "
+                                          "(beyond MatDEM's translation-only elements): discs "
+                                          "roll, resisted by rolling_friction")
+    restitution: Optional[float] = F(None, gt=0, le=1,
+                                     description="Coefficient of restitution of every contact "
+                                                 "(a normal dashpot on contacts in compression; "
+                                                 "default none: collisions are elastic, as in "
+                                                 "MatDEM)")
+    rolling_friction: float = F(0.0, ge=0, le=1,
+                                description="Rolling-resistance coefficient mu_r of every "
+                                            "element with rotation: a contact resists rolling "
+                                            "up to mu_r R* |Fn| (R* = R_i R_j / (R_i + R_j))")
 
     def n_side(self) -> int:
         return max(4, int(round(10.0 * self.scale)))
@@ -257,6 +269,14 @@ class GranularColumn(ModelBase):
         st.gravity[:] = [0.0, -self.gravity]
         st.eta[:] = 0.0
         neighbors.build_rows(st)
+        if self.rotation:
+            from geodem.core.state import enable_rotation
+
+            enable_rotation(st, mu_r=self.rolling_friction)
+        if self.restitution is not None:
+            from geodem.core.state import enable_contact_damping
+
+            enable_contact_damping(st, restitution=self.restitution)
         # settle the columns behind their gates under real gravity, friction on
         st.dt = 0.0
         sim = Simulation(st, monitor_every=0)
@@ -268,6 +288,8 @@ class GranularColumn(ModelBase):
                 break
         st = sim.sync()
         st.v[:] = 0.0
+        if st.rotation:
+            st.w[:] = 0.0
         st.eta[:] = 0.0
         st.dt = 0.0
         neighbors.spatial_sort(st)
@@ -279,6 +301,9 @@ class GranularColumn(ModelBase):
         info = {"diameter": d, "n_side": self.n_side(), "columns": columns,
                 "gravity": self.gravity, "material": {k: p[k] for k in ("kn", "ks", "mu", "rho")},
                 "floor_friction": mu_floor, "wall_friction": self.wall_friction,
+                "rotation": self.rotation,
+                "rolling_friction": self.rolling_friction if self.rotation else None,
+                "restitution": self.restitution,
                 "balance_ratio": ratio}
         return BuiltModel(st, st.x.copy(), n_across, info)
 
@@ -477,7 +502,10 @@ class _Collapse:
 
     def _kinetic(self, st):
         i = np.concatenate(self.idx)
-        return float(0.5 * (st.m[i, None] * st.v[i] ** 2).sum())
+        ke = float(0.5 * (st.m[i, None] * st.v[i] ** 2).sum())
+        if st.rotation:
+            ke += float(0.5 * (st.inertia[i, None] * st.w[i] ** 2).sum())
+        return ke
 
     def _save(self):
         from geodem.workflow.rundir import write_json
@@ -548,8 +576,11 @@ class _Collapse:
         for k, i in enumerate(self.idx):
             col[i] = k
         ref = self.ctx.model.reference
-        return {"radius": st.r[idx], "velocity": st.v[idx], "displacement": st.x[idx] - ref[idx],
-                "column": col[idx], "group": st.group[idx]}
+        out = {"radius": st.r[idx], "velocity": st.v[idx], "displacement": st.x[idx] - ref[idx],
+               "column": col[idx], "group": st.group[idx]}
+        if st.rotation:
+            out["angular_velocity"] = st.w[idx, -1]  # about z [rad/s]
+        return out
 
     def _release(self):
         """Move every gate behind its back wall (outside the channel): instantaneous release."""

@@ -5,12 +5,12 @@ Default suite: the reference law and the front detection on hand-made input, bad
 walls) run end to end: summary keys, pictures, GIF, VTK, the deposit at rest, and the runout
 against Lube et al. (2005) within RUNOUT_TOLERANCE.
 
-Tolerance of the small run: 0.5. The elements translate only (MatDEM's law: no rotation, so
-no rolling), which acts like a strong rolling resistance; with the glass-bead friction 0.5 on
-the rough floor the deposits run out 30-40 % short of the law at a = 2 and 4 (measured at the
-default size, docs/column_collapse.md). The test guards the measurement and gross failures (a
-column that does not fall, a deposit scattered over the channel: errors of 0.6 to > 1) rather
-than the validation target 0.15, which the full run below reports.
+Tolerance of the small run: 0.35. The shipped workflow has rotating elements with rolling
+resistance 0.3 and restitution 0.9; at 6 elements across one grain more or less at the front is
+10 % of L0 and packings of different seeds differ by up to 0.2 (docs/column_collapse.md;
+measured 0.02). The test guards the measurement and gross failures (a column that does not
+fall, a deposit scattered over the channel: errors of 0.6 to > 1) rather than the validation
+target 0.15, which the full run below reports.
 
 Slow (``-m slow``): the shipped workflow at its default size (four aspect ratios, about 1,700
 elements, a few minutes on one core)::
@@ -34,7 +34,7 @@ load_builtins()
 
 ROOT = Path(__file__).resolve().parents[2]
 WF = ROOT / "workflows" / "column_collapse.yaml"
-RUNOUT_TOLERANCE = 0.5
+RUNOUT_TOLERANCE = 0.35
 KEYS = ("aspect_ratios", "runouts", "runout_rel_error", "runout_reference", "runout_rel_errors",
         "runout_lengths", "final_heights", "at_rest")
 
@@ -72,6 +72,8 @@ def test_deposit_front_excludes_detached_elements():
     ("model.aspect_ratios", "[0.1]", "model.aspect_ratios.0"),
     ("model.scale", "100", "model.scale"),
     ("steps.collapse.gif_column", "7", "steps[0].gif_column"),
+    ("model.restitution", "1.5", "model.restitution"),
+    ("model.rolling_friction", "-0.1", "model.rolling_friction"),
 ])
 def test_bad_input_exits_2_naming_the_field(key, value, field):
     res = CliRunner().invoke(app, ["validate", str(WF), "--set", f"{key}={value}"])
@@ -135,5 +137,5 @@ def test_default_workflow_four_aspect_ratios(tmp_path):
     assert len(s["runouts"]) == 4 and s["at_rest"] is True
     # the runout grows with the aspect ratio
     assert np.all(np.diff(s["runouts"]) > 0)
-    # measured at the default size (docs/column_collapse.md); target 0.15 not met
-    assert s["runout_rel_error"] < 1.0
+    # measured at the default size: 0.175 (docs/column_collapse.md); target 0.15 not met
+    assert s["runout_rel_error"] < 0.25

@@ -48,9 +48,8 @@ def test_damping_ratio_by_hand():
 @pytest.mark.parametrize("e, err_default", [(0.9, 0.008), (0.5, 0.028), (0.2, 0.042)])
 def test_binary_collision_rebounds_at_the_analytic_restitution(e, err_default):
     """The rebound against the analytic capped spring-dashpot value. The dashpot sees the
-    step's mean relative velocity (half a step late), so the rebound is first-order accurate in
-    dt: 0.7-4 % lively at the default step (2 % of the period), four times closer at a quarter
-    of it. The heat is the kinetic energy lost."""
+    step's mean relative velocity (half a step late): 0.7-4 % lively at the default step (2 % of
+    the period), 0.03-0.2 % at a quarter of it. The heat is the kinetic energy lost."""
     e_ref = capped_restitution(e)
     assert e_ref > e  # the cap makes the rebound livelier than the uncapped formula
     errs = []
@@ -62,7 +61,7 @@ def test_binary_collision_rebounds_at_the_analytic_restitution(e, err_default):
         # energy for an undamped one at the default step)
         assert abs(en["heat_viscous"] - ke0 * (1.0 - e_num ** 2)) < 0.006 * ke0
     assert 0.0 < errs[0] < err_default
-    assert abs(errs[1]) < 0.35 * errs[0]
+    assert abs(errs[1]) < 0.1 * errs[0]
 
 
 def test_no_damping_is_elastic_and_books_close():
