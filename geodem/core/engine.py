@@ -77,18 +77,27 @@ def validate_state(state) -> None:
 
 
 def _check_initial_overlaps(state, limit: float) -> None:
-    """Refuse a model whose row contacts already overlap beyond ``limit`` x the smaller radius
-    (the first step would fire the pair apart): ValueError naming the pair, before stepping."""
-    from geodem.core.checks import max_overlap
-
-    if state.n < 2 or not (state.nbr >= 0).any():
+    """Refuse a model whose unbonded row contacts already overlap beyond ``limit`` x the smaller
+    radius (the first step would fire the pair apart): ValueError naming the pair, before
+    stepping. Bonded pairs may be built in compression on purpose (a prestressed lattice)."""
+    if state.n < 2:
         return
-    worst, i, j = max_overlap(state.x, state.r, state.nbr)
-    if worst > limit:
+    nbr = state.nbr
+    on = (nbr >= 0) & (state.cstate != BONDED)
+    if not on.any():
+        return
+    i, k = np.nonzero(on)
+    j = nbr[i, k]
+    d = np.linalg.norm(state.x[j] - state.x[i], axis=1)
+    ri, rj = state.r[i], state.r[j]
+    ratio = (ri + rj - d) / np.minimum(ri, rj)
+    worst = int(np.argmax(ratio))
+    if ratio[worst] > limit:
+        a, b = sorted((int(i[worst]), int(j[worst])))
         raise ValueError(
-            f"elements {i} and {j} overlap by {worst:.3g} x the smaller radius before the first "
-            f"step; allowed: overlap_limit = {limit:g} (build a looser packing, relax it first, "
-            f"or raise overlap_limit)")
+            f"elements {a} and {b} overlap by {ratio[worst]:.3g} x the smaller radius before the "
+            f"first step; allowed: overlap_limit = {limit:g} (build a looser packing, relax it "
+            f"first, or raise overlap_limit)")
 
 
 def _refresh_acceleration(st, snap) -> None:
@@ -126,8 +135,8 @@ class Simulation:
     backend: ``auto | numba | numpy | cupy`` (default: ``$GEODEM_BACKEND`` or ``auto``).
     dt: time step [s]; default ``dt_fraction`` x the smallest element period.
     check_every: steps between neighbour/crack/finiteness checks.
-    overlap_limit: largest allowed overlap as a fraction of the smaller radius; a model that
-        starts beyond it is refused (ValueError) unless the monitor is off.
+    overlap_limit: largest allowed overlap as a fraction of the smaller radius; a model whose
+        unbonded contacts start beyond it is refused (ValueError) unless the monitor is off.
     monitor_every: steps between energy-growth and overlap checks (0 = never, e.g. while a
         packing is being relaxed); must be a multiple of ``check_every``.
     allow_unstable_dt: skip the refusal of a ``dt`` above the (conservative) stability bound;
