@@ -47,6 +47,7 @@ def _bodies(DIM, ROT, DAMP, jit_device):
     rolling = retarget(law.rolling)
     series = glb["series"]
     NR = 1 if DIM == 2 else 3  # rotational DOFs per element
+    BONDED = law.BONDED
 
     def dof_free(v, a, f, m, eta, dt, ddx):
         # implicit trapezoidal damping; returns new v, new a, viscous heat share
@@ -196,7 +197,7 @@ def _bodies(DIM, ROT, DAMP, jit_device):
                     # the step's mean relative velocity du/dt (the end-of-step velocities are
                     # not known yet): first-order accurate in dt
                     fd = c * (nx * rx + ny * ry + nz * ez) / dt
-                    if csn != 1 and fd > -fn:
+                    if csn != BONDED and fd > -fn:
                         fd = -fn
                     d0 += fd * nx
                     d1 += fd * ny
@@ -320,8 +321,9 @@ def _bodies(DIM, ROT, DAMP, jit_device):
 @functools.lru_cache(maxsize=None)
 def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = False):
     """Compile the kernels for ``dim`` in {2, 3}, ``target`` in {cpu, cuda}, translation-only
-    or rotating elements, without or with the contact dashpot: a namespace with ``move, force, energy`` over every element and
-    ``move_idx, force_idx`` over the elements of an index array (the first argument).
+    or rotating elements, without or with the contact dashpot: a namespace with ``move, force,
+    energy`` over every element and ``move_idx, force_idx`` over the elements of an index array
+    (the first argument).
 
     Argument order: ``move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt, *EXTRA_MOVE)``,
     ``force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs, brate, q_visc, q_bn,

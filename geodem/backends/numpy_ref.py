@@ -196,11 +196,10 @@ class NumpyBackend(HostBackend):
             mom = s.mr[..., 0]
             trial = mom - kr * t[..., 0]
             a2 = trial * trial
-            q = np.zeros_like(trial)
+            slip = a2 > lim * lim
             nrm = np.sqrt(np.where(a2 > 0.0, a2, 1.0))
-            scale = np.where(a2 > lim * lim, np.where(lim > 0.0, lim / nrm, 0.0), 1.0)
-            new = trial * scale
-            q = q + np.where(a2 > lim * lim, (mom + new) * (trial - new) * hk, 0.0)
+            new = trial * np.where(slip, np.where(lim > 0.0, lim / nrm, 0.0), 1.0)
+            q = np.where(slip, (mom + new) * (trial - new) * hk, 0.0)
             new3 = new[..., None]
             arm = ri * (n[..., 0] * shear[..., 1] - n[..., 1] * shear[..., 0])
             tq = (arm + new)[..., None]

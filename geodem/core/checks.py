@@ -5,6 +5,8 @@ import numba
 import numpy as np
 from numba import prange
 
+from geodem.core.state import BONDED
+
 
 @numba.njit(parallel=True, cache=True)
 def _row_overlap(x, r, nbr, out_ratio, out_col):
@@ -106,3 +108,29 @@ def unbalanced_force_ratio(state) -> float:
     if nfree == 0 or ncon == 0 or fcon == 0.0:
         return 0.0
     return (fnet / nfree) / (fcon / ncon)
+
+
+def initial_overlap(state, bonded: bool = True, chunk: int = 200_000) -> tuple[float, int, int]:
+    """Largest overlap of a contact in the rows with at least one free element, as a fraction
+    of the smaller radius: ``(ratio, i, j)``; ``(0.0, -1, -1)`` when nothing overlaps. With
+    ``bonded=False`` bonded pairs are left out (a lattice may be built in compression). (Overlaps
+    between fixed elements are :func:`geodem.core.engine.validate_state`'s business.)"""
+    best, bi, bj = 0.0, -1, -1
+    movable = (state.free != 0).any(axis=1)
+    for lo in range(0, state.n, chunk):
+        hi = min(state.n, lo + chunk)
+        nb = state.nbr[lo:hi]
+        i = np.broadcast_to(np.arange(lo, hi)[:, None], nb.shape)
+        ok = (nb >= 0) & (movable[i] | movable[np.maximum(nb, 0)])
+        if not bonded:
+            ok &= state.cstate[lo:hi] != BONDED
+        if not ok.any():
+            continue
+        i, j = i[ok], nb[ok]
+        dist = np.linalg.norm(state.x[j] - state.x[i], axis=1)
+        ri, rj = state.r[i], state.r[j]
+        ratio = (ri + rj - dist) / np.minimum(ri, rj)
+        k = int(np.argmax(ratio))
+        if ratio[k] > best:
+            best, bi, bj = float(ratio[k]), int(min(i[k], j[k])), int(max(i[k], j[k]))
+    return best, bi, bj

@@ -77,25 +77,15 @@ def validate_state(state) -> None:
 
 
 def _check_initial_overlaps(state, limit: float) -> None:
-    """Refuse a model whose unbonded row contacts already overlap beyond ``limit`` x the smaller
-    radius (the first step would fire the pair apart): ValueError naming the pair, before
-    stepping. Bonded pairs may be built in compression on purpose (a prestressed lattice)."""
-    if state.n < 2:
-        return
-    nbr = state.nbr
-    on = (nbr >= 0) & (state.cstate != BONDED)
-    if not on.any():
-        return
-    i, k = np.nonzero(on)
-    j = nbr[i, k]
-    d = np.linalg.norm(state.x[j] - state.x[i], axis=1)
-    ri, rj = state.r[i], state.r[j]
-    ratio = (ri + rj - d) / np.minimum(ri, rj)
-    worst = int(np.argmax(ratio))
-    if ratio[worst] > limit:
-        a, b = sorted((int(i[worst]), int(j[worst])))
+    """Refuse a model whose unbonded contacts (a free element in each) already overlap beyond
+    ``limit`` x the smaller radius: the first step would fire the pair apart. ValueError naming
+    the pair, before stepping; bonded pairs may be built in compression on purpose."""
+    from geodem.core.checks import initial_overlap
+
+    ratio, a, b = initial_overlap(state, bonded=False)
+    if ratio > limit:
         raise ValueError(
-            f"elements {a} and {b} overlap by {ratio[worst]:.3g} x the smaller radius before the "
+            f"elements {a} and {b} overlap by {ratio:.3g} x the smaller radius before the "
             f"first step; allowed: overlap_limit = {limit:g} (build a looser packing, relax it "
             f"first, or raise overlap_limit)")
 

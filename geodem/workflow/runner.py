@@ -31,6 +31,7 @@ import numpy as np
 import yaml
 
 from geodem import __version__
+from geodem.core.checks import initial_overlap
 from geodem.workflow import rundir as rd
 from geodem.workflow.errors import (
     EXIT_FAILURE,
@@ -176,29 +177,6 @@ def _build(cfg, doc):
         raise WorkflowError(doc.error(("model",), f"the built model is not valid: {exc}")) \
             from None
     return built
-
-
-def initial_overlap(state, chunk: int = 200_000) -> tuple[float, int, int]:
-    """Largest overlap of a contact in the rows with at least one free element, as a fraction
-    of the smaller radius: ``(ratio, i, j)``; ``(0.0, -1, -1)`` when nothing overlaps. (Overlaps
-    between fixed elements are :func:`geodem.core.engine.validate_state`'s business.)"""
-    best, bi, bj = 0.0, -1, -1
-    movable = (state.free != 0).any(axis=1)
-    for lo in range(0, state.n, chunk):
-        hi = min(state.n, lo + chunk)
-        nb = state.nbr[lo:hi]
-        i = np.broadcast_to(np.arange(lo, hi)[:, None], nb.shape)
-        ok = (nb >= 0) & (movable[i] | movable[np.maximum(nb, 0)])
-        if not ok.any():
-            continue
-        i, j = i[ok], nb[ok]
-        dist = np.linalg.norm(state.x[j] - state.x[i], axis=1)
-        ri, rj = state.r[i], state.r[j]
-        ratio = (ri + rj - dist) / np.minimum(ri, rj)
-        k = int(np.argmax(ratio))
-        if ratio[k] > best:
-            best, bi, bj = float(ratio[k]), int(min(i[k], j[k])), int(max(i[k], j[k]))
-    return best, bi, bj
 
 
 def _check_initial_overlap(cfg, doc, state) -> float:

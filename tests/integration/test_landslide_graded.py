@@ -80,7 +80,7 @@ def test_graded_parameters_follow_each_elements_size(built):
 def test_graded_model_is_held_and_starts_without_overlaps(built):
     prep, _ = built
     st = prep.built.state
-    from geodem.workflow.runner import initial_overlap
+    from geodem.core.checks import initial_overlap
 
     ratio, _, _ = initial_overlap(st)
     assert ratio < 0.01 < prep.cfg.simulation.overlap_limit

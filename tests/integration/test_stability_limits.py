@@ -209,7 +209,7 @@ def test_deep_initial_overlap_exits_2_from_the_command_line():
 
 
 def test_initial_overlap_ignores_fixed_pairs_and_finds_the_free_one():
-    from geodem.workflow.runner import initial_overlap
+    from geodem.core.checks import initial_overlap
 
     st = lattice(4)
     st.free[:2] = 0.0
