@@ -189,6 +189,12 @@ class GranularColumn(ModelBase):
                                 description="Rolling-resistance coefficient mu_r of every "
                                             "element with rotation: a contact resists rolling "
                                             "up to mu_r R* |Fn| (R* = R_i R_j / (R_i + R_j))")
+    packings: Int = F(1, ge=1, le=8,
+                      description="Packings per aspect ratio (1 to 8): every ratio is run with "
+                                  "this many columns packed with the seeds seed, seed + 1, ..., "
+                                  "each in its own channel; the summary's runouts and "
+                                  "runout_rel_error are those of the mean normalised runout "
+                                  "(elements and cost ~ packings)")
 
     def n_side(self) -> int:
         return max(4, int(round(10.0 * self.scale)))
@@ -206,7 +212,7 @@ class GranularColumn(ModelBase):
             n += (L0 * (1.0 + self.channel_length * lube_2005(a)) + 6 * d) / \
                 (FLOOR_SPACING * self.floor_element * d)
             n += 2 * (H0 + 2 * d) / (FLOOR_SPACING * 0.5 * d)
-        return max(1, int(n))
+        return max(1, int(n * self.packings))
 
     def bytes_per_element(self):
         return state_bytes_per_element(2, 8) + 3000
@@ -216,7 +222,7 @@ class GranularColumn(ModelBase):
 
     def group_names(self):
         out = ["all"]
-        for k in range(len(self.aspect_ratios)):
+        for k in range(len(self.aspect_ratios) * self.packings):
             out += [f"column_{k}", f"floor_{k}", f"back_{k}", f"gate_{k}", f"end_{k}"]
         return out
 
@@ -245,10 +251,14 @@ class GranularColumn(ModelBase):
         mu_floor = p["mu"] if self.floor_friction is None else self.floor_friction
         parts, shifts, columns = [], [], []
         y0 = 0.0
-        for k, a in enumerate(self.aspect_ratios):
+        n_ratios = len(self.aspect_ratios)
+        # column k = j n_ratios + i: packing j (seed + j) of aspect ratio i
+        for k, (j, i) in enumerate((j, i) for j in range(self.packings)
+                                   for i in range(n_ratios)):
+            a = self.aspect_ratios[i]
             L0, H0 = column_dims(a, self.column_size)
             try:
-                col = _packed_column(L0, H0, d, self.distri_rate, p, seed + 7919 * k,
+                col = _packed_column(L0, H0, d, self.distri_rate, p, seed + j + 7919 * i,
                                      self.packing_friction or 0.0)
             except ValueError as exc:
                 raise BuildError(("column_size",), str(exc)) from None
@@ -261,7 +271,8 @@ class GranularColumn(ModelBase):
             columns.append({"aspect_ratio_nominal": a, "aspect_ratio": a_meas, "L0": L0,
                             "H0": H_meas, "packed_length": L_meas, "elements": int(col.n),
                             "floor_y": y0, "x_end": x_end, "group": f"column_{k}",
-                            "gate": f"gate_{k}"})
+                            "gate": f"gate_{k}", "ratio_index": i, "packing": j,
+                            "seed": seed + j + 7919 * i})
             parts.append(st)
             shifts.append([0.0, y0])
             y0 += H_meas + 3.0 * d + 2.0 * d  # next floor: above this column, clear of it
@@ -299,6 +310,7 @@ class GranularColumn(ModelBase):
             c["H0"] = float((st.x[idx, 1] + st.r[idx]).max()) - c["floor_y"]
             c["aspect_ratio"] = c["H0"] / c["L0"]
         info = {"diameter": d, "n_side": self.n_side(), "columns": columns,
+                "packings": self.packings, "n_ratios": n_ratios,
                 "gravity": self.gravity, "material": {k: p[k] for k in ("kn", "ks", "mu", "rho")},
                 "floor_friction": mu_floor, "wall_friction": self.wall_friction,
                 "rotation": self.rotation,
@@ -483,8 +495,11 @@ class _Collapse:
                              int(math.ceil(step.max_time * self.tau / self.dt)))
         self.n_across = float(ctx.model.n_across)
         self.out = ctx.out_dir
+        self.n_ratios = int(info.get("n_ratios", len(self.cols)))
+        self.packings = int(info.get("packings", 1))
+        # gif_column indexes aspect_ratios: that ratio's first packing
         k = step.gif_column if step.gif_column is not None else \
-            int(np.argmax([c["aspect_ratio"] for c in self.cols]))
+            int(np.argmax([c["aspect_ratio"] for c in self.cols[:self.n_ratios]]))
         self.gif_k = k
 
     # ------------------------------------------------------------------ helpers
@@ -688,37 +703,48 @@ class _Collapse:
             if per[-1]["reached_end_wall"]:
                 ctx.log(f"warning: column {k} (a = {a:.3g}) reached its end wall: runout "
                         "truncated (raise model.channel_length)")
-            name = f"collapse_a{c['aspect_ratio_nominal']:g}"
+            name = f"collapse_a{c['aspect_ratio_nominal']:g}" + \
+                (f"_p{c['packing']}" if c.get("packing") else "")
             write_vtp(self.out / f"{name}.vtp", st.x[i], self._point_data(st, i))
             ctx.runner.files.append(f"{name}.vtp")
             if p.plot and ctx.cfg.outputs.plots:
                 ctx.plot(f"{name}.png", lambda path, k=k, c=c: plot_snapshots(
                     path, init[f"x{k}"], init[f"r{k}"], st.x[self.idx[k]], st.r[self.idx[k]], c,
                     per[k], self.d))
-        err = max(v["rel_error"] for v in per)
-        out = {"aspect_ratios": [v["aspect_ratio"] for v in per],
-               "runouts": [v["runout"] for v in per],
-               "runout_reference": [v["reference"] for v in per],
-               "runout_rel_errors": [v["rel_error"] for v in per],
+        mean = packing_means(per, self.n_ratios, self.packings)
+        err = max(v["rel_error"] for v in mean)
+        nr, npk = self.n_ratios, self.packings
+        out = {"aspect_ratios": [v["aspect_ratio"] for v in mean],
+               "runouts": [v["runout"] for v in mean],
+               "runout_reference": [v["reference"] for v in mean],
+               "runout_rel_errors": [v["rel_error"] for v in mean],
                "runout_rel_error": err,
-               "runout_lengths": [v["runout_length"] for v in per],
-               "final_heights": [v["final_height"] for v in per],
-               "at_rest": self.prog["at_rest"]}
+               "runout_lengths": [v["runout_length"] for v in mean],
+               "final_heights": [v["final_height"] for v in mean],
+               "at_rest": self.prog["at_rest"],
+               "packings": npk,
+               "runouts_per_packing": [v["runouts"] for v in mean],
+               "runout_std": [v["std"] for v in mean],
+               "runout_rel_error_per_packing": [
+                   max(v["rel_error"] for v in per[j * nr:(j + 1) * nr]) for j in range(npk)]}
         ctx.summary.update(out)
         res = dict(out, columns=per, passed=bool(err <= p.tolerance), tolerance=p.tolerance,
                    reference=REFERENCE, tau=self.tau, flow_time=self.prog["flow_time"],
                    flow_end=self.prog["flow_end_reason"],
                    settle_balances=self.prog["settle_balances"], damping=p.damping,
                    d_mean=self.d)
-        ctx.log("runout (L_inf - L0)/L0: " + ", ".join(
-            f"a = {v['aspect_ratio']:.3g}: {v['runout']:.3g} (law {v['reference']:.3g}, "
-            f"{100 * v['rel_error']:.1f} %)" for v in per) + f"; max error {100 * err:.1f} %")
+        ctx.log(("runout (L_inf - L0)/L0" if npk == 1 else
+                 f"runout (L_inf - L0)/L0, mean of {npk} packings") + ": " + ", ".join(
+            f"a = {v['aspect_ratio']:.3g}: {v['runout']:.3g}" +
+            ("" if npk == 1 else " (" + " / ".join(f"{x:.3g}" for x in v["runouts"]) + ")") +
+            f" (law {v['reference']:.3g}, {100 * v['rel_error']:.1f} %)" for v in mean) +
+            f"; max error {100 * err:.1f} %")
         if p.plot and ctx.cfg.outputs.plots:
             rows = self.rows
             res["plots"] = [
-                ctx.plot("collapse_runout.png", lambda path: plot_runout(path, per)),
+                ctx.plot("collapse_runout.png", lambda path: plot_runout(path, mean, per)),
                 ctx.plot("collapse_history.png", lambda path: plot_history(
-                    path, rows, self.cols, self.tau)),
+                    path, rows, self.cols, self.tau, nr)),
             ]
             if p.gif:
                 from geodem.workflow.animation import gif_writer_missing
@@ -734,6 +760,25 @@ class _Collapse:
                     res["animation"] = ctx.plot("collapse.gif", lambda path: write_gif(
                         path, frames, c, per[self.gif_k], self.d))
         return res
+
+
+def packing_means(per, n_ratios, packings):
+    """Per aspect ratio, the packings' results combined: ``per`` holds one dict per column
+    (column ``j n_ratios + i``: packing ``j`` of ratio ``i``). Mean measured aspect ratio,
+    mean normalised runout ``runout`` (the packings' values in ``runouts``, their sample
+    standard deviation in ``std``; 0 for one packing), the law at the mean ratio and the
+    relative error of the mean, mean ``runout_length`` and ``final_height``."""
+    out = []
+    for i in range(n_ratios):
+        cs = [per[j * n_ratios + i] for j in range(packings)]
+        m = {key: sum(c[key] for c in cs) / packings
+             for key in ("aspect_ratio", "runout", "runout_length", "final_height")}
+        runouts = [c["runout"] for c in cs]
+        ref = lube_2005(m["aspect_ratio"])
+        m.update(runouts=runouts, reference=ref, rel_error=abs(m["runout"] - ref) / ref,
+                 std=float(np.std(runouts, ddof=1)) if packings > 1 else 0.0)
+        out.append(m)
+    return out
 
 
 # ============================================================================ pictures
@@ -785,19 +830,27 @@ def plot_snapshots(path, x0, r0, x1, r1, c, res, d):
     return path
 
 
-def plot_runout(path, per):
-    """Normalised runout against aspect ratio with the law of Lube et al. (2005)."""
+def plot_runout(path, mean, per=None):
+    """Normalised runout against aspect ratio with the law of Lube et al. (2005): the mean over
+    the packings (``mean``, :func:`packing_means`; with its standard deviation) and, with more
+    than one packing, every column of ``per``."""
     plt = pyplot()
     if plt is None:
         return None
-    a = np.array([v["aspect_ratio"] for v in per])
-    nr = np.array([v["runout"] for v in per])
+    a = np.array([v["aspect_ratio"] for v in mean])
+    nr = np.array([v["runout"] for v in mean])
     fig, ax = plt.subplots(figsize=(5.5, 4.2))
     aa = np.linspace(0.0, max(5.0, 1.2 * a.max()), 300)
     ax.plot(aa, lube_2005(aa), "k-", lw=1.2, label="Lube et al. 2005 (quasi-2-D)")
     ax.fill_between(aa, 0.85 * lube_2005(aa), 1.15 * lube_2005(aa), color="0.85",
                     label="+-15 %")
-    ax.plot(a, nr, "C3o", ms=7, label="geodem (2-D discs)")
+    if per is not None and len(per) > len(mean):
+        ax.plot([v["aspect_ratio"] for v in per], [v["runout"] for v in per], "o", ms=4,
+                color="C0", alpha=0.6, label="geodem, each packing")
+        ax.errorbar(a, nr, yerr=[v["std"] for v in mean], fmt="C3o", ms=7, capsize=3,
+                    label=f"geodem, mean of {len(per) // len(mean)} packings (+- std)")
+    else:
+        ax.plot(a, nr, "C3o", ms=7, label="geodem (2-D discs)")
     ax.set_xlabel("aspect ratio a = H0 / L0")
     ax.set_ylabel("(L_inf - L0) / L0")
     ax.set_xlim(0.0, aa[-1])
@@ -810,8 +863,9 @@ def plot_runout(path, per):
     return path
 
 
-def plot_history(path, rows, cols, tau):
-    """Normalised fronts and kinetic energy against time / tau."""
+def plot_history(path, rows, cols, tau, n_ratios=None):
+    """Normalised fronts and kinetic energy against time / tau (one colour per aspect ratio:
+    the first ``n_ratios`` columns labelled, further packings in the same colours)."""
     plt = pyplot()
     if plt is None or not rows:
         return None
@@ -819,8 +873,11 @@ def plot_history(path, rows, cols, tau):
     ke = np.array([r[3] for r in rows])
     fr = np.array([r[5:] for r in rows], float)
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.8))
+    n_ratios = n_ratios or len(cols)
     for k, c in enumerate(cols):
-        a1.plot(t, (fr[:, k] - c["L0"]) / c["L0"], label=f"a = {c['aspect_ratio']:.3g}")
+        a1.plot(t, (fr[:, k] - c["L0"]) / c["L0"], color=f"C{k % n_ratios}", lw=1.5,
+                alpha=1.0 if k < n_ratios else 0.5,
+                label=f"a = {c['aspect_ratio']:.3g}" if k < n_ratios else None)
     a1.set_xlabel("t / tau, tau = sqrt(H0_max / g)")
     a1.set_ylabel("(front - L0) / L0")
     a1.legend(fontsize=8)
@@ -860,4 +917,5 @@ def write_gif(path, frames, c, res, d):
     return save_gif(path, images, fps=8)
 
 
-__all__ = ["GranularColumn", "ColumnCollapse", "lube_2005", "column_dims", "deposit_front"]
+__all__ = ["GranularColumn", "ColumnCollapse", "lube_2005", "column_dims", "deposit_front",
+           "packing_means"]

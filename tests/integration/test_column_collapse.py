@@ -27,7 +27,7 @@ from typer.testing import CliRunner
 
 from geodem.cli import app
 from geodem.workflow import run_workflow
-from geodem.workflow.collapse import column_dims, deposit_front, lube_2005
+from geodem.workflow.collapse import column_dims, deposit_front, lube_2005, packing_means
 from geodem.workflow.schema import load_builtins
 
 load_builtins()
@@ -67,6 +67,25 @@ def test_deposit_front_excludes_detached_elements():
     assert deposit_front(x2, r, link=0.5)[0] == pytest.approx(5.4)
 
 
+def test_packing_means_by_hand():
+    # two ratios x two packings, column j * 2 + i = packing j of ratio i
+    per = [{"aspect_ratio": a, "runout": nr, "runout_length": 0.1 * nr, "final_height": h}
+           for a, nr, h in [(1.0, 1.0, 0.03), (4.0, 5.0, 0.04),
+                            (1.1, 1.4, 0.05), (4.2, 6.0, 0.06)]]
+    m = packing_means(per, 2, 2)
+    assert [v["runouts"] for v in m] == [[1.0, 1.4], [5.0, 6.0]]
+    assert m[0]["runout"] == pytest.approx(1.2) and m[1]["runout"] == pytest.approx(5.5)
+    assert m[0]["aspect_ratio"] == pytest.approx(1.05)
+    assert m[1]["final_height"] == pytest.approx(0.05)
+    assert m[0]["std"] == pytest.approx(0.4 / math.sqrt(2.0))  # sample std (ddof 1)
+    assert m[0]["reference"] == pytest.approx(1.2 * 1.05)  # the law at the mean ratio
+    assert m[0]["rel_error"] == pytest.approx(abs(1.2 - 1.26) / 1.26)
+    assert m[1]["rel_error"] == pytest.approx(abs(5.5 - lube_2005(4.1)) / lube_2005(4.1))
+    # one packing: the column itself, exactly
+    one = packing_means(per[:2], 2, 1)
+    assert [v["runout"] for v in one] == [1.0, 5.0] and one[0]["std"] == 0.0
+
+
 # ------------------------------------------------------------------ bad input
 @pytest.mark.parametrize("key,value,field", [
     ("model.aspect_ratios", "[0.1]", "model.aspect_ratios.0"),
@@ -74,6 +93,8 @@ def test_deposit_front_excludes_detached_elements():
     ("steps.collapse.gif_column", "7", "steps[0].gif_column"),
     ("model.restitution", "1.5", "model.restitution"),
     ("model.rolling_friction", "-0.1", "model.rolling_friction"),
+    ("model.packings", "0", "model.packings"),
+    ("model.packings", "9", "model.packings"),
 ])
 def test_bad_input_exits_2_naming_the_field(key, value, field):
     res = CliRunner().invoke(app, ["validate", str(WF), "--set", f"{key}={value}"])
@@ -127,6 +148,31 @@ def test_small_column_runout_against_lube_2005(small_run):
     assert s["runout_rel_error"] == pytest.approx(abs(nr - ref) / ref)
     assert s["runout_rel_error"] < RUNOUT_TOLERANCE, (nr, ref)
     assert math.isfinite(s["runout_lengths"][0])
+
+
+def test_two_packings_give_two_runouts_and_their_mean(tmp_path):
+    # a = 1, 4 elements across, two packings (seeds 0 and 1), no pictures: a few seconds
+    code, s = run_workflow(
+        WF, tmp_path / "run", sets=["model.aspect_ratios=[1.0]", "model.scale=0.4",
+                                    "model.packings=2", "steps.collapse.gif=false",
+                                    "steps.collapse.plot=false", "outputs.observables.every=2000"],
+        echo=False)
+    assert code == 0, s
+    assert s["packings"] == 2
+    (two,) = s["runouts_per_packing"]
+    assert len(two) == 2 and two[0] != two[1]  # different packings, different deposits
+    assert s["runouts"][0] == pytest.approx(0.5 * (two[0] + two[1]))
+    assert s["runout_std"][0] == pytest.approx(abs(two[0] - two[1]) / math.sqrt(2.0))
+    ref = lube_2005(s["aspect_ratios"][0])
+    assert s["runout_rel_error"] == pytest.approx(abs(s["runouts"][0] - ref) / ref)
+    assert len(s["runout_rel_error_per_packing"]) == 2
+    info = json.loads((tmp_path / "run" / "summary.json").read_text())
+    cols = info["results"]["collapse"]["columns"]
+    assert len(cols) == 2
+    for c, nr in zip(cols, two):  # the per-packing errors are those of the columns
+        assert c["runout"] == pytest.approx(nr)
+    assert s["runout_rel_error_per_packing"] == pytest.approx([c["rel_error"] for c in cols])
+    assert (tmp_path / "run" / "collapse_a1_p1.vtp").exists()
 
 
 # ------------------------------------------------------------------ the validation
