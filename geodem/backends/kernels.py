@@ -1,321 +1,103 @@
-"""Single-source element kernels: one loop body, compiled for the CPU (numba) and GPU (CUDA).
+"""The time step's kernels: one loop body per pass (``geodem.backends.step_bodies``), compiled for
+the CPU (numba ``prange``) or the GPU (CUDA; the CUDA simulator runs the same code in CI without
+a GPU).
 
-The time step is two passes over elements (velocity Verlet, PHYSICS.md section 3):
+``DIM``, ``ROT`` and ``DAMP`` are compile-time constants, so the 2-D kernels carry no third
+component and an option that is off costs nothing. The contact law (``geodem.core.law``) is
+compiled into the same code, force-inlined in the row loop.
 
-1. ``move``:  ``dx = dt v + dt^2 a / 2`` on free DOFs, ``dx = dt v`` on fixed/kinematic ones;
-   ``x += dx``; books the first half of the viscous heat and of the external work.
-2. ``force``: each element walks its own row (no scatter, no atomics), evaluates every contact
-   with :func:`geodem.core.law.contact`, sums the force, and updates its velocity with the damping
-   treated by the trapezoidal rule (implicit, unconditionally stable for the damping term):
-   ``v' = (v + dt/2 a + dt/(2m) F) / (1 + eta dt/(2m))``, ``a' = (F - eta v')/m``.
-   Fixed and kinematic DOFs keep their velocity and store ``a = F_contact/m`` (the reaction).
-
-The bodies below are plain Python functions of scalars and arrays. ``make_kernels`` compiles them
-with ``numba.njit`` + ``prange`` (target ``"cpu"``) or ``numba.cuda.jit`` (target ``"cuda"``; the
-CUDA simulator runs the same code in CI without a GPU). ``DIM`` is a compile-time constant so the
-2-D kernels carry no third component.
+The CPU kernels are cached on disk: the law's and the bodies' source are written into one
+module per variant (``$GEODEM_CACHE_DIR``, else ``$XDG_CACHE_HOME/geodem`` or
+``~/.cache/geodem``, subfolder ``kernels``) and compiled with numba's ``cache=True``, so only
+the first run of a variant pays the 7-20 s compilation. The module is rewritten when the law or
+the bodies change, which invalidates numba's cache. Where no cache folder can be written, the
+same source is compiled in memory.
 """
 from __future__ import annotations
 
 import functools
-import math
+import importlib.util
+import inspect
+import os
+import sys
 import types
+from pathlib import Path
 
+from geodem.backends import step_bodies
 from geodem.core import law
 
+LAW_NAMES = law.HELPERS + ("contact", "rolling", "contact_energy")
+BODY_NAMES = ("dof_free", "dof_step", "move_body", "force_body", "energy_body")
+PASSES = ("move", "force", "energy", "move_idx", "force_idx")
 
-def _bodies(DIM, ROT, DAMP, jit_device):
-    """Build the per-element bodies for dimension ``DIM`` with the device-function decorator.
 
-    ``DAMP`` (compile-time): contacts in compression get the normal dashpot of
-    ``geodem.core.state.enable_contact_damping`` (damping ratio in ``props`` column 7).
+def _constants(dim, rot, damp):
+    return {"DIM": dim, "ROT": rot, "DAMP": damp, "NR": 1 if dim == 2 else 3}
 
-    ``ROT`` (compile-time): the elements also turn (``geodem.core.state.enable_rotation``); the
-    rotation arrays ``w, wa, dth, rfree, inertia, mr`` are then read and written, otherwise
-    they are placeholders the compiled code never touches.
-    """
-    # the law's helpers are plain Python; rebind them to compiled versions for this target
-    glb = dict(vars(law))
-    for name in law.HELPERS:
-        glb[name] = jit_device(getattr(law, name))
 
-    def retarget(f):
-        return jit_device(types.FunctionType(f.__code__, glb, f.__name__, f.__defaults__))
+def _cuda_bodies(dim, rot, damp, dev):
+    """The law and the bodies as CUDA device functions, bound to this variant's constants."""
+    glb = dict(vars(step_bodies))
+    glb.update(_constants(dim, rot, damp))
+    for name in LAW_NAMES + BODY_NAMES:
+        f = getattr(law, name, None) or getattr(step_bodies, name)
+        glb[name] = dev(types.FunctionType(f.__code__, glb, f.__name__, f.__defaults__))
+    return glb["move_body"], glb["force_body"], glb["energy_body"]
 
-    contact = retarget(law.contact)
-    contact_energy = retarget(law.contact_energy)
-    rolling = retarget(law.rolling)
-    series = glb["series"]
-    NR = 1 if DIM == 2 else 3  # rotational DOFs per element
-    BONDED = law.BONDED
 
-    def dof_free(v, a, f, m, eta, dt, ddx):
-        # implicit trapezoidal damping; returns new v, new a, viscous heat share
-        vn = (v + 0.5 * dt * a + 0.5 * dt * f / m) / (1.0 + 0.5 * dt * eta / m)
-        return vn, (f - eta * vn) / m, 0.5 * eta * vn * ddx
+def cache_dir() -> Path:
+    """Folder of the generated CPU kernel modules and numba's cache of them."""
+    base = os.environ.get("GEODEM_CACHE_DIR")
+    if not base:
+        base = os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"),
+                            "geodem")
+    return Path(base) / "kernels"
 
-    dof_free = jit_device(dof_free)
 
-    def dof_step(free, v, a, fc, m, eta, dt, ddx):
-        # one rotational degree of freedom after the force pass: a free one turns under the
-        # torque fc (returns w, w', viscous heat, 0); a fixed or prescribed one keeps w and
-        # stores the reaction fc/I, whose work -fc ddx/2 it returns. (The translational loop
-        # spells the same out inline: see geodem.core.law.tangent on why.)
-        if free != 0.0:
-            vn, an, dq = dof_free(v, a, fc, m, eta, dt, ddx)
-            return vn, an, dq, 0.0
-        return v, fc / m, 0.0, -0.5 * fc * ddx
+def cpu_source(dim: int, rotation: bool, damping: bool, cache: bool = True) -> str:
+    """Python source of one CPU kernel variant: the law, the bodies and the prange loops with
+    this variant's constants, jitted with the flags the step needs."""
+    parts = [f'"""geodem CPU step kernels, dim={dim}, rotation={rotation}, damping={damping}.\n\n'
+             "Generated by geodem.backends.kernels from geodem/core/law.py and "
+             "geodem/backends/step_bodies.py;\nrewritten whenever they change. Do not edit."
+             '"""',
+             "import math\n\nimport numba\nfrom numba import prange",
+             f"UNBONDED = {law.UNBONDED!r}\nBONDED = {law.BONDED!r}",
+             "\n".join(f"{k} = {v!r}" for k, v in _constants(dim, rotation, damping).items())]
+    parts += [inspect.getsource(getattr(law, n)) for n in LAW_NAMES]
+    parts += [inspect.getsource(getattr(step_bodies, n)) for n in BODY_NAMES]
+    parts += [inspect.getsource(getattr(step_bodies, "cpu_" + n)) for n in PASSES]
+    jit = ['_dev = numba.njit(fastmath=True, error_model="numpy", forceinline=True, cache=False)',
+           '_par = numba.njit(parallel=True, fastmath=True, error_model="numpy", '
+           f'cache={bool(cache)!r})']
+    jit += [f"{n} = _dev({n})" for n in LAW_NAMES + BODY_NAMES]
+    jit += [f"{n} = _par(cpu_{n})" for n in PASSES]
+    parts.append("\n".join(jit))
+    return "\n\n\n".join(p.rstrip() for p in parts) + "\n"
 
-    dof_step = jit_device(dof_step)
 
-    def move_body(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
-                  w, wa, dth, rfree, inertia, fdash):
-        qv = 0.0
-        we = 0.0
-        for d in range(DIM):
-            if free[i, d] != 0.0:
-                ddx = dt * v[i, d] + 0.5 * dt * dt * a[i, d]
-                qv += 0.5 * eta[i] * v[i, d] * ddx
-                we += fload[i, d] * ddx
-            else:
-                ddx = dt * v[i, d]
-                we -= 0.5 * m[i] * a[i, d] * ddx
-            dx[i, d] = ddx
-            x[i, d] += ddx
-            if DAMP:
-                qv -= 0.5 * fdash[i, d] * ddx
-        if ROT:
-            # the same Verlet half step for the rotation; damping eta I/m (same decay time)
-            ii = inertia[i]
-            etar = eta[i] * ii / m[i]
-            for d in range(NR):
-                if rfree[i, d] != 0.0:
-                    ddt = dt * w[i, d] + 0.5 * dt * dt * wa[i, d]
-                    qv += 0.5 * etar * w[i, d] * ddt
-                else:
-                    ddt = dt * w[i, d]
-                    we -= 0.5 * ii * wa[i, d] * ddt
-                dth[i, d] = ddt
-        q_visc[i] += qv
-        w_ext[i] += we
-
-    def force_body(i, x, v, a, dx, free, fload, props, m, eta,
-                   nbr, cstate, fs, brate, q_visc, q_bn, q_bs, q_f, w_ext,
-                   g0, g1, g2, dt, code_t, code_s, hertz, ext):
-        # the options' arrays come as one tuple: seven more arguments of the inlined body made
-        # the plain kernel 15-25 % slower (measured), one tuple costs nothing
-        w, wa, dth, rfree, inertia, fdash, mr = ext
-        xi0 = x[i, 0]
-        xi1 = x[i, 1]
-        di0 = dx[i, 0]
-        di1 = dx[i, 1]
-        xi2 = 0.0
-        di2 = 0.0
-        if DIM == 3:
-            xi2 = x[i, 2]
-            di2 = dx[i, 2]
-        # props columns: r, kn, ks, xb, fs0, mu, mu_r (one cache line per element)
-        ri = props[i, 0]
-        kni = props[i, 1]
-        ksi = props[i, 2]
-        xbi = props[i, 3]
-        fs0i = props[i, 4]
-        mui = props[i, 5]
-        f0 = 0.0
-        f1 = 0.0
-        f2 = 0.0
-        qn = 0.0
-        qs = 0.0
-        qf = 0.0
-        d0 = 0.0  # dashpot force (DAMP)
-        d1 = 0.0
-        d2 = 0.0
-        t0 = 0.0  # torque [N m] (2-D: only t2, about z)
-        t1 = 0.0
-        t2 = 0.0
-        for k in range(nbr.shape[1]):
-            j = nbr[i, k]
-            if j < 0:
-                break
-            ex = 0.0
-            ez = 0.0
-            s2 = 0.0
-            if DIM == 3:
-                ex = x[j, 2] - xi2
-                ez = dx[j, 2] - di2
-                s2 = fs[i, k, 2]
-            bx = x[j, 0] - xi0
-            by = x[j, 1] - xi1
-            rx = dx[j, 0] - di0
-            ry = dx[j, 1] - di1
-            if ROT:
-                # the law sees the contact point's relative displacement: the rotations
-                # move it by -(R_i dth_i + R_j dth_j) x n (symmetric in i, j: j's row gets
-                # exactly the opposite)
-                inv = 1.0 / math.sqrt(bx * bx + by * by + ex * ex)
-                cnx = bx * inv
-                cny = by * inv
-                cnz = ex * inv
-                rj = props[j, 0]
-                if DIM == 2:
-                    cz = ri * dth[i, 0] + rj * dth[j, 0]
-                    rx = rx + cz * cny
-                    ry = ry - cz * cnx
-                else:
-                    cx = ri * dth[i, 0] + rj * dth[j, 0]
-                    cy = ri * dth[i, 1] + rj * dth[j, 1]
-                    cz = ri * dth[i, 2] + rj * dth[j, 2]
-                    rx = rx - (cy * cnz - cz * cny)
-                    ry = ry - (cz * cnx - cx * cnz)
-                    ez = ez - (cx * cny - cy * cnx)
-            cs = cstate[i, k]
-            (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf) = contact(
-                bx, by, ex, rx, ry, ez,
-                fs[i, k, 0], fs[i, k, 1], s2,
-                ri, props[j, 0], kni, props[j, 1], ksi, props[j, 2], xbi, props[j, 3],
-                fs0i, props[j, 4], mui, props[j, 5],
-                brate[i, k], cs, code_t, code_s, hertz)
-            fs[i, k, 0] = sx
-            fs[i, k, 1] = sy
-            if DIM == 3:
-                fs[i, k, 2] = sz
-            if csn != cs:
-                cstate[i, k] = csn
-            f0 += fn * nx + sx
-            f1 += fn * ny + sy
-            f2 += fn * nz + sz
-            qn += eqn
-            qs += eqs
-            qf += eqf
-            if DAMP:
-                # normal dashpot c (v_j - v_i).n on a contact in compression; an unbonded
-                # contact may resist separation but never pull
-                zeta = min(props[i, 7], props[j, 7])
-                if fn < 0.0 and zeta > 0.0 and dt > 0.0:
-                    mj = m[j]
-                    c = 2.0 * zeta * math.sqrt(m[i] * mj / (m[i] + mj) * series(kni, props[j, 1]))
-                    # the step's mean relative velocity du/dt (the end-of-step velocities are
-                    # not known yet): first-order accurate in dt
-                    fd = c * (nx * rx + ny * ry + nz * ez) / dt
-                    if csn != BONDED and fd > -fn:
-                        fd = -fn
-                    d0 += fd * nx
-                    d1 += fd * ny
-                    d2 += fd * nz
-            if ROT:
-                # the shear force acts at the contact point R_i n; rolling resistance on top
-                rs = series(ri, rj)
-                kr = series(ksi, props[j, 2]) * rs * rs
-                lim = min(props[i, 6], props[j, 6]) * rs * max(-fn, 0.0)
-                if DIM == 2:  # about z only
-                    u0 = 0.0
-                    u1 = 0.0
-                    u2 = dth[i, 0] - dth[j, 0]
-                    m0 = 0.0
-                    m1 = 0.0
-                    m2 = mr[i, k, 0]
-                else:
-                    u0 = dth[i, 0] - dth[j, 0]
-                    u1 = dth[i, 1] - dth[j, 1]
-                    u2 = dth[i, 2] - dth[j, 2]
-                    m0 = mr[i, k, 0]
-                    m1 = mr[i, k, 1]
-                    m2 = mr[i, k, 2]
-                (mx, my, mz, eqr) = rolling(nx, ny, nz, u0, u1, u2, m0, m1, m2, kr, lim)
-                if DIM == 2:
-                    mr[i, k, 0] = mz
-                else:
-                    mr[i, k, 0] = mx
-                    mr[i, k, 1] = my
-                    mr[i, k, 2] = mz
-                    t0 += ri * (ny * sz - nz * sy) + mx
-                    t1 += ri * (nz * sx - nx * sz) + my
-                t2 += ri * (nx * sy - ny * sx) + mz
-                qf += eqr
-        q_bn[i] += 0.5 * qn
-        q_bs[i] += 0.5 * qs
-        q_f[i] += 0.5 * qf
-        mi = m[i]
-        etai = eta[i]
-        qv = 0.0
-        if DAMP:
-            # the dashpot force acts over half of this step and half of the next (trapezoid, as
-            # velocity Verlet integrates it): heat -F_d . dx / 2 now, the rest in move
-            f0 += d0
-            f1 += d1
-            f2 += d2
-            qv -= 0.5 * (d0 * dx[i, 0] + d1 * dx[i, 1])
-            fdash[i, 0] = d0
-            fdash[i, 1] = d1
-            if DIM == 3:
-                qv -= 0.5 * d2 * dx[i, 2]
-                fdash[i, 2] = d2
-        we = 0.0
-        for d in range(DIM):
-            if d == 0:
-                fc = f0
-                g = g0
-            elif d == 1:
-                fc = f1
-                g = g1
-            else:
-                fc = f2
-                g = g2
-            if free[i, d] != 0.0:
-                vn, an, dq = dof_free(v[i, d], a[i, d], fc + mi * g + fload[i, d], mi, etai, dt,
-                                      dx[i, d])
-                v[i, d] = vn
-                a[i, d] = an
-                qv += dq
-            else:
-                a[i, d] = fc / mi
-                we -= 0.5 * fc * dx[i, d]
-        if ROT:
-            ii = inertia[i]
-            etar = etai * ii / mi
-            for d in range(NR):
-                if DIM == 2 or d == 2:
-                    tc = t2
-                elif d == 0:
-                    tc = t0
-                else:
-                    tc = t1
-                wn, an, dq, dw = dof_step(rfree[i, d], w[i, d], wa[i, d], tc, ii, etar, dt,
-                                          dth[i, d])
-                w[i, d] = wn
-                wa[i, d] = an
-                qv += dq
-                we += dw
-        q_visc[i] += qv
-        w_ext[i] += we
-
-    def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr):
-        # half of each contact's elastic energy (the other half is booked by j's row)
-        e = 0.0
-        for k in range(nbr.shape[1]):
-            j = nbr[i, k]
-            if j < 0:
-                break
-            ex = 0.0
-            s2 = 0.0
-            if DIM == 3:
-                ex = x[j, 2] - x[i, 2]
-                s2 = fs[i, k, 2]
-            e += contact_energy(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], ex,
-                                fs[i, k, 0], fs[i, k, 1], s2,
-                                props[i, 0], props[j, 0], props[i, 1], props[j, 1],
-                                props[i, 2], props[j, 2], cstate[i, k], hertz)
-            if ROT:
-                rs = series(props[i, 0], props[j, 0])
-                kr = series(props[i, 2], props[j, 2]) * rs * rs
-                m2 = 0.0
-                for d in range(NR):
-                    m2 += mr[i, k, d] * mr[i, k, d]
-                if kr > 0.0:
-                    e += 0.5 * m2 / kr
-        e_el[i] = 0.5 * e
-
-    return move_body, force_body, energy_body
+def _cpu_module(dim, rot, damp):
+    """Import the variant's generated module from the cache folder (written if missing or
+    out of date); compiled in memory, uncached, if the folder cannot be written."""
+    name = f"geodem_step_{dim}d_rot{int(rot)}_damp{int(damp)}"
+    src = cpu_source(dim, rot, damp)
+    try:
+        folder = cache_dir()
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{name}.py"
+        if not path.exists() or path.read_text() != src:
+            tmp = path.with_suffix(f".{os.getpid()}.tmp")
+            tmp.write_text(src)
+            os.replace(tmp, path)  # atomic: a concurrent run sees the old or the new file
+        spec = importlib.util.spec_from_file_location(name, path)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod
+        spec.loader.exec_module(mod)
+        return mod
+    except OSError:
+        mod = types.ModuleType(name)
+        exec(compile(cpu_source(dim, rot, damp, cache=False), f"<{name}>", "exec"), vars(mod))
+        return mod
 
 
 @functools.lru_cache(maxsize=None)
@@ -340,58 +122,8 @@ def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = 
     rot = bool(rotation)
     damp = bool(damping)
     if target == "cpu":
-        import numba
-        from numba import prange
-
-        dev = functools.partial(numba.njit, fastmath=True, error_model="numpy", forceinline=True,
-                                cache=False)
-        move_b, force_b, energy_b = _bodies(dim, rot, damp, lambda f: dev(f))
-        move_b = dev(move_b)
-        force_b = dev(force_b)
-        energy_b = dev(energy_b)
-        par = numba.njit(parallel=True, fastmath=True, error_model="numpy", cache=False)
-
-        @par
-        def move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
-                 w, wa, dth, rfree, inertia, fdash):
-            for i in prange(x.shape[0]):
-                move_b(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
-                       w, wa, dth, rfree, inertia, fdash)
-
-        @par
-        def force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
-                  brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz,
-                  w, wa, dth, rfree, inertia, fdash, mr):
-            for i in prange(x.shape[0]):
-                force_b(i, x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
-                        fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                        code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr))
-
-        @par
-        def energy(x, props, nbr, cstate, fs, hertz, e_el, mr):
-            for i in prange(x.shape[0]):
-                energy_b(i, x, props, nbr, cstate, fs, hertz, e_el, mr)
-
-        # the same passes over a list of elements only (the others are asleep: see
-        # geodem.fields.freeze)
-        @par
-        def move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
-                     w, wa, dth, rfree, inertia, fdash):
-            for k in prange(idx.shape[0]):
-                move_b(idx[k], x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
-                       w, wa, dth, rfree, inertia, fdash)
-
-        @par
-        def force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
-                      brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s,
-                      hertz, w, wa, dth, rfree, inertia, fdash, mr):
-            for k in prange(idx.shape[0]):
-                force_b(idx[k], x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
-                        fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                        code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr))
-
-        return types.SimpleNamespace(move=move, force=force, energy=energy,
-                                     move_idx=move_idx, force_idx=force_idx)
+        mod = _cpu_module(dim, rot, damp)
+        return types.SimpleNamespace(**{n: getattr(mod, n) for n in PASSES})
 
     if target == "cuda":
         # ``cuda`` must be a module global: the CUDA simulator swaps it in the kernels' globals
@@ -399,8 +131,7 @@ def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = 
         from numba import cuda
 
         dev = lambda f: cuda.jit(device=True)(f)  # noqa: E731
-        move_b, force_b, energy_b = _bodies(dim, rot, damp, dev)
-        move_b, force_b, energy_b = dev(move_b), dev(force_b), dev(energy_b)
+        move_b, force_b, energy_b = _cuda_bodies(dim, rot, damp, dev)
 
         @cuda.jit
         def move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,

@@ -1,0 +1,346 @@
+"""The time step's per-element bodies, written once for every target (a template).
+
+``geodem.backends.kernels.make_kernels`` compiles this module's functions per dimension, option
+set and target: the names ``DIM`` (2 or 3), ``ROT`` (rotating elements), ``DAMP`` (contact
+dashpot), ``NR`` (rotational DOFs) and the contact law's functions (``contact``, ``rolling``,
+``contact_energy``, ``series``) are bound to compile-time constants and to the law compiled for
+that target. The placeholders below only make the module importable; nothing here runs as
+plain Python.
+
+The step is two passes over elements (velocity Verlet, PHYSICS.md section 3):
+
+1. ``move_body``: ``dx = dt v + dt^2 a / 2`` on free DOFs, ``dx = dt v`` on fixed/kinematic
+   ones; ``x += dx``; books the first half of the viscous heat and of the external work.
+2. ``force_body``: the element walks its own row (no scatter, no atomics), evaluates every
+   contact with :func:`geodem.core.law.contact`, sums the force, and updates its velocity with
+   the damping treated by the trapezoidal rule (implicit, unconditionally stable for the
+   damping term): ``v' = (v + dt/2 a + dt/(2m) F) / (1 + eta dt/(2m))``,
+   ``a' = (F - eta v')/m``. Fixed and kinematic DOFs keep their velocity and store
+   ``a = F_contact/m`` (the reaction).
+
+``ROT`` (compile-time): the elements also turn (``geodem.core.state.enable_rotation``); the
+rotation arrays ``w, wa, dth, rfree, inertia, mr`` are then read and written, otherwise they
+are placeholders the compiled code never touches. ``DAMP`` (compile-time): contacts in
+compression get the normal dashpot of ``geodem.core.state.enable_contact_damping`` (damping
+ratio in ``props`` column 7).
+
+The CPU loops (``cpu_*``, numba ``prange``) live here too, so that the compiled CPU kernels can
+be cached on disk (see ``make_kernels``); the CUDA launches are in ``geodem.backends.kernels``.
+"""
+import math
+
+from numba import prange
+
+from geodem.core.law import BONDED, contact, contact_energy, rolling, series
+
+DIM = 3  # placeholders: bound per compiled variant
+ROT = False
+DAMP = False
+NR = 3
+
+
+def dof_free(v, a, f, m, eta, dt, ddx):
+    # implicit trapezoidal damping; returns new v, new a, viscous heat share
+    vn = (v + 0.5 * dt * a + 0.5 * dt * f / m) / (1.0 + 0.5 * dt * eta / m)
+    return vn, (f - eta * vn) / m, 0.5 * eta * vn * ddx
+
+
+def dof_step(free, v, a, fc, m, eta, dt, ddx):
+    # one rotational degree of freedom after the force pass: a free one turns under the
+    # torque fc (returns w, w', viscous heat, 0); a fixed or prescribed one keeps w and
+    # stores the reaction fc/I, whose work -fc ddx/2 it returns. (The translational loop
+    # spells the same out inline: see geodem.core.law.tangent on why.)
+    if free != 0.0:
+        vn, an, dq = dof_free(v, a, fc, m, eta, dt, ddx)
+        return vn, an, dq, 0.0
+    return v, fc / m, 0.0, -0.5 * fc * ddx
+
+
+def move_body(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+              w, wa, dth, rfree, inertia, fdash):
+    qv = 0.0
+    we = 0.0
+    for d in range(DIM):
+        if free[i, d] != 0.0:
+            ddx = dt * v[i, d] + 0.5 * dt * dt * a[i, d]
+            qv += 0.5 * eta[i] * v[i, d] * ddx
+            we += fload[i, d] * ddx
+        else:
+            ddx = dt * v[i, d]
+            we -= 0.5 * m[i] * a[i, d] * ddx
+        dx[i, d] = ddx
+        x[i, d] += ddx
+        if DAMP:
+            qv -= 0.5 * fdash[i, d] * ddx
+    if ROT:
+        # the same Verlet half step for the rotation; damping eta I/m (same decay time)
+        ii = inertia[i]
+        etar = eta[i] * ii / m[i]
+        for d in range(NR):
+            if rfree[i, d] != 0.0:
+                ddt = dt * w[i, d] + 0.5 * dt * dt * wa[i, d]
+                qv += 0.5 * etar * w[i, d] * ddt
+            else:
+                ddt = dt * w[i, d]
+                we -= 0.5 * ii * wa[i, d] * ddt
+            dth[i, d] = ddt
+    q_visc[i] += qv
+    w_ext[i] += we
+
+
+def force_body(i, x, v, a, dx, free, fload, props, m, eta,
+               nbr, cstate, fs, brate, q_visc, q_bn, q_bs, q_f, w_ext,
+               g0, g1, g2, dt, code_t, code_s, hertz, ext):
+    # the options' arrays come as one tuple: seven more arguments of the inlined body made
+    # the plain kernel 15-25 % slower (measured), one tuple costs nothing
+    w, wa, dth, rfree, inertia, fdash, mr = ext
+    xi0 = x[i, 0]
+    xi1 = x[i, 1]
+    di0 = dx[i, 0]
+    di1 = dx[i, 1]
+    xi2 = 0.0
+    di2 = 0.0
+    if DIM == 3:
+        xi2 = x[i, 2]
+        di2 = dx[i, 2]
+    # props columns: r, kn, ks, xb, fs0, mu, mu_r (one cache line per element)
+    ri = props[i, 0]
+    kni = props[i, 1]
+    ksi = props[i, 2]
+    xbi = props[i, 3]
+    fs0i = props[i, 4]
+    mui = props[i, 5]
+    f0 = 0.0
+    f1 = 0.0
+    f2 = 0.0
+    qn = 0.0
+    qs = 0.0
+    qf = 0.0
+    d0 = 0.0  # dashpot force (DAMP)
+    d1 = 0.0
+    d2 = 0.0
+    t0 = 0.0  # torque [N m] (2-D: only t2, about z)
+    t1 = 0.0
+    t2 = 0.0
+    for k in range(nbr.shape[1]):
+        j = nbr[i, k]
+        if j < 0:
+            break
+        ex = 0.0
+        ez = 0.0
+        s2 = 0.0
+        if DIM == 3:
+            ex = x[j, 2] - xi2
+            ez = dx[j, 2] - di2
+            s2 = fs[i, k, 2]
+        bx = x[j, 0] - xi0
+        by = x[j, 1] - xi1
+        rx = dx[j, 0] - di0
+        ry = dx[j, 1] - di1
+        if ROT:
+            # the law sees the contact point's relative displacement: the rotations
+            # move it by -(R_i dth_i + R_j dth_j) x n (symmetric in i, j: j's row gets
+            # exactly the opposite)
+            inv = 1.0 / math.sqrt(bx * bx + by * by + ex * ex)
+            cnx = bx * inv
+            cny = by * inv
+            cnz = ex * inv
+            rj = props[j, 0]
+            if DIM == 2:
+                cz = ri * dth[i, 0] + rj * dth[j, 0]
+                rx = rx + cz * cny
+                ry = ry - cz * cnx
+            else:
+                cx = ri * dth[i, 0] + rj * dth[j, 0]
+                cy = ri * dth[i, 1] + rj * dth[j, 1]
+                cz = ri * dth[i, 2] + rj * dth[j, 2]
+                rx = rx - (cy * cnz - cz * cny)
+                ry = ry - (cz * cnx - cx * cnz)
+                ez = ez - (cx * cny - cy * cnx)
+        cs = cstate[i, k]
+        (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf) = contact(
+            bx, by, ex, rx, ry, ez,
+            fs[i, k, 0], fs[i, k, 1], s2,
+            ri, props[j, 0], kni, props[j, 1], ksi, props[j, 2], xbi, props[j, 3],
+            fs0i, props[j, 4], mui, props[j, 5],
+            brate[i, k], cs, code_t, code_s, hertz)
+        fs[i, k, 0] = sx
+        fs[i, k, 1] = sy
+        if DIM == 3:
+            fs[i, k, 2] = sz
+        if csn != cs:
+            cstate[i, k] = csn
+        f0 += fn * nx + sx
+        f1 += fn * ny + sy
+        f2 += fn * nz + sz
+        qn += eqn
+        qs += eqs
+        qf += eqf
+        if DAMP:
+            # normal dashpot c (v_j - v_i).n on a contact in compression; an unbonded
+            # contact may resist separation but never pull
+            zeta = min(props[i, 7], props[j, 7])
+            if fn < 0.0 and zeta > 0.0 and dt > 0.0:
+                mj = m[j]
+                c = 2.0 * zeta * math.sqrt(m[i] * mj / (m[i] + mj) * series(kni, props[j, 1]))
+                # the step's mean relative velocity du/dt (the end-of-step velocities are
+                # not known yet): first-order accurate in dt
+                fd = c * (nx * rx + ny * ry + nz * ez) / dt
+                if csn != BONDED and fd > -fn:
+                    fd = -fn
+                d0 += fd * nx
+                d1 += fd * ny
+                d2 += fd * nz
+        if ROT:
+            # the shear force acts at the contact point R_i n; rolling resistance on top
+            rs = series(ri, rj)
+            kr = series(ksi, props[j, 2]) * rs * rs
+            lim = min(props[i, 6], props[j, 6]) * rs * max(-fn, 0.0)
+            if DIM == 2:  # about z only
+                u0 = 0.0
+                u1 = 0.0
+                u2 = dth[i, 0] - dth[j, 0]
+                m0 = 0.0
+                m1 = 0.0
+                m2 = mr[i, k, 0]
+            else:
+                u0 = dth[i, 0] - dth[j, 0]
+                u1 = dth[i, 1] - dth[j, 1]
+                u2 = dth[i, 2] - dth[j, 2]
+                m0 = mr[i, k, 0]
+                m1 = mr[i, k, 1]
+                m2 = mr[i, k, 2]
+            (mx, my, mz, eqr) = rolling(nx, ny, nz, u0, u1, u2, m0, m1, m2, kr, lim)
+            if DIM == 2:
+                mr[i, k, 0] = mz
+            else:
+                mr[i, k, 0] = mx
+                mr[i, k, 1] = my
+                mr[i, k, 2] = mz
+                t0 += ri * (ny * sz - nz * sy) + mx
+                t1 += ri * (nz * sx - nx * sz) + my
+            t2 += ri * (nx * sy - ny * sx) + mz
+            qf += eqr
+    q_bn[i] += 0.5 * qn
+    q_bs[i] += 0.5 * qs
+    q_f[i] += 0.5 * qf
+    mi = m[i]
+    etai = eta[i]
+    qv = 0.0
+    if DAMP:
+        # the dashpot force acts over half of this step and half of the next (trapezoid, as
+        # velocity Verlet integrates it): heat -F_d . dx / 2 now, the rest in move
+        f0 += d0
+        f1 += d1
+        f2 += d2
+        qv -= 0.5 * (d0 * dx[i, 0] + d1 * dx[i, 1])
+        fdash[i, 0] = d0
+        fdash[i, 1] = d1
+        if DIM == 3:
+            qv -= 0.5 * d2 * dx[i, 2]
+            fdash[i, 2] = d2
+    we = 0.0
+    for d in range(DIM):
+        if d == 0:
+            fc = f0
+            g = g0
+        elif d == 1:
+            fc = f1
+            g = g1
+        else:
+            fc = f2
+            g = g2
+        if free[i, d] != 0.0:
+            vn, an, dq = dof_free(v[i, d], a[i, d], fc + mi * g + fload[i, d], mi, etai, dt,
+                                  dx[i, d])
+            v[i, d] = vn
+            a[i, d] = an
+            qv += dq
+        else:
+            a[i, d] = fc / mi
+            we -= 0.5 * fc * dx[i, d]
+    if ROT:
+        ii = inertia[i]
+        etar = etai * ii / mi
+        for d in range(NR):
+            if DIM == 2 or d == 2:
+                tc = t2
+            elif d == 0:
+                tc = t0
+            else:
+                tc = t1
+            wn, an, dq, dw = dof_step(rfree[i, d], w[i, d], wa[i, d], tc, ii, etar, dt,
+                                      dth[i, d])
+            w[i, d] = wn
+            wa[i, d] = an
+            qv += dq
+            we += dw
+    q_visc[i] += qv
+    w_ext[i] += we
+
+
+def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr):
+    # half of each contact's elastic energy (the other half is booked by j's row)
+    e = 0.0
+    for k in range(nbr.shape[1]):
+        j = nbr[i, k]
+        if j < 0:
+            break
+        ex = 0.0
+        s2 = 0.0
+        if DIM == 3:
+            ex = x[j, 2] - x[i, 2]
+            s2 = fs[i, k, 2]
+        e += contact_energy(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], ex,
+                            fs[i, k, 0], fs[i, k, 1], s2,
+                            props[i, 0], props[j, 0], props[i, 1], props[j, 1],
+                            props[i, 2], props[j, 2], cstate[i, k], hertz)
+        if ROT:
+            rs = series(props[i, 0], props[j, 0])
+            kr = series(props[i, 2], props[j, 2]) * rs * rs
+            m2 = 0.0
+            for d in range(NR):
+                m2 += mr[i, k, d] * mr[i, k, d]
+            if kr > 0.0:
+                e += 0.5 * m2 / kr
+    e_el[i] = 0.5 * e
+
+
+
+# ------------------------------------------------------------------ CPU loops (numba prange)
+def cpu_move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+             w, wa, dth, rfree, inertia, fdash):
+    for i in prange(x.shape[0]):
+        move_body(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+                  w, wa, dth, rfree, inertia, fdash)
+
+
+def cpu_force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
+              brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz,
+              w, wa, dth, rfree, inertia, fdash, mr):
+    for i in prange(x.shape[0]):
+        force_body(i, x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
+                   fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
+                   code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr))
+
+
+def cpu_energy(x, props, nbr, cstate, fs, hertz, e_el, mr):
+    for i in prange(x.shape[0]):
+        energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr)
+
+
+# the same passes over a list of elements only (the others are asleep: geodem.fields.freeze)
+def cpu_move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+                 w, wa, dth, rfree, inertia, fdash):
+    for k in prange(idx.shape[0]):
+        move_body(idx[k], x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
+                  w, wa, dth, rfree, inertia, fdash)
+
+
+def cpu_force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
+                  brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s,
+                  hertz, w, wa, dth, rfree, inertia, fdash, mr):
+    for k in prange(idx.shape[0]):
+        force_body(idx[k], x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
+                   fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
+                   code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr))
