@@ -2,9 +2,16 @@
 
 The loop (``Simulation.run``) does per step exactly two backend calls, ``move`` and ``force``
 (velocity Verlet, see ``geodem.backends.kernels``), and nothing else: no Python loop over
-elements, no allocation, no host/device copy. Every ``check_every`` steps it asks whether the
-neighbour rows need a rebuild (predictive skin test), harvests new cracks and checks that the
-state is finite. Energies are computed on demand (``energies``).
+elements, no allocation, no host/device copy. Every ``check_every`` steps at most (sooner when
+elements move fast) it asks whether the neighbour rows need a rebuild (skin test), harvests new
+cracks and checks that the state is finite. Energies are computed on demand (``energies``).
+
+Skin test: an element's displacement since the last rebuild, ``disp``, may reach half the skin
+before a pair it approaches could touch unseen. With ``u = dt v_max`` the farthest an element
+goes in a step at the current top speed, the rows are rebuilt when ``disp + u > skin/2``, and the
+next check comes after ``floor((skin/2 - disp)/u)`` steps (at most ``check_every``). A fixed
+interval would let fast elements (a landslide's front) cross the skin between two checks and
+touch unseen: 13 such pairs were measured in the default landslide before this rule.
 
 Energy balance (PHYSICS.md section 4)::
 
@@ -124,7 +131,8 @@ class Simulation:
     state: the model (modified in place; call :meth:`sync` before reading arrays on a GPU).
     backend: ``auto | numba | numpy | cupy`` (default: ``$GEODEM_BACKEND`` or ``auto``).
     dt: time step [s]; default ``dt_fraction`` x the smallest element period.
-    check_every: steps between neighbour/crack/finiteness checks.
+    check_every: most steps between neighbour/crack/finiteness checks (fewer while elements
+        move fast: see the module doc).
     overlap_limit: largest allowed overlap as a fraction of the smaller radius; a model whose
         unbonded contacts start beyond it is refused (ValueError) unless the monitor is off.
     monitor_every: steps between energy-growth and overlap checks (0 = never, e.g. while a
@@ -154,6 +162,7 @@ class Simulation:
         self.check_every = int(check_every)
         self.overlap_limit = overlap_limit
         self.monitor_every = int(monitor_every)
+        self._schedule_checks()
         self.rebuilds = 0
         self.cracks = {"i": [], "j": [], "time": [], "type": []}
         self.fields = []
@@ -185,7 +194,7 @@ class Simulation:
             s.time += dt
             if every_field and nxt % every_field == 0:
                 self._advance_fields(nxt)
-            if nxt % self.check_every == 0:
+            if nxt >= self._next_check:
                 self._checks()
             if callback is not None and every and nxt % every == 0:
                 callback(self)
@@ -216,14 +225,27 @@ class Simulation:
                 f.advance(self, f.every * dt)
                 b.push(tuple(f.writes))
 
+    def _schedule_checks(self, next_check=None, next_monitor=None):
+        """The steps of the next check and the next monitor (default: the next multiples of
+        ``check_every`` and ``monitor_every`` after the current step)."""
+        step = self.state.step
+        self._next_check = (int(next_check) if next_check is not None
+                            else (step // self.check_every + 1) * self.check_every)
+        me = self.monitor_every
+        self._next_monitor = (int(next_monitor) if next_monitor is not None
+                              else (step // me + 1) * me if me else 0)
+
     def _checks(self):
         s, b = self.state, self.backend
         if not b.all_finite():
             b.pull(("x", "v"))
             self._raise_nonfinite()
+        interval = self.check_every
         if s.skin > 0.0:
             disp, speed = b.max_disp_speed()
-            if disp + self.check_every * s.dt * speed > 0.5 * s.skin:
+            u = s.dt * speed  # farthest an element goes in one step at the current top speed
+            half = 0.5 * s.skin
+            if disp + u > half:
                 from geodem.core import neighbors
 
                 b.pull(("x", "v", "x_ref") + s.row_array_names())
@@ -231,14 +253,19 @@ class Simulation:
                 neighbors.build_rows(s)
                 self.rebuilds += 1
                 b.push()
+                disp = 0.0
             else:
                 self._harvest()
+            if u > 0.0:
+                interval = max(1, min(self.check_every, int((half - disp) / u)))
         else:
             self._harvest()
+        self._next_check = s.step + interval
         # a rebuild must not skip the monitor: a run blowing up rebuilds at every check
-        if self.monitor_every and s.step % self.monitor_every == 0:
+        if self.monitor_every and s.step >= self._next_monitor:
             self.check_energy()
             self.check_overlaps()
+            self._next_monitor = (s.step // self.monitor_every + 1) * self.monitor_every
 
     def _raise_nonfinite(self):
         s = self.state
@@ -453,6 +480,8 @@ class Simulation:
                                             "emech0": self._emech0,
                                             "check_every": self.check_every,
                                             "monitor_every": self.monitor_every,
+                                            "next_check": self._next_check,
+                                            "next_monitor": self._next_monitor,
                                             "fields": [{"kind": f.kind, "config": f.config(),
                                                         "substeps": f.substeps}
                                                        for f in self.fields]},
@@ -471,6 +500,7 @@ class Simulation:
         sim.check_every = int(extra["check_every"])
         sim.overlap_limit = 0.5
         sim.monitor_every = int(extra.get("monitor_every", 1000))
+        sim._schedule_checks(extra.get("next_check"), extra.get("next_monitor"))
         sim.rebuilds = 0
         sim.cracks = extra["cracks"]
         sim._eg0, sim._emech0 = extra["eg0"], extra["emech0"]

@@ -94,7 +94,8 @@ class SimulationSpec(Strict):
                            description="Time step as a fraction of the smallest element period "
                                        "2 pi sqrt(2 m / kn) (used when dt is not given)")
     check_every: Int = F(10, ge=1, le=100_000,
-                         description="Steps between neighbour/crack/finiteness checks")
+                         description="Most steps between neighbour/crack/finiteness checks "
+                                     "(sooner while elements move fast)")
     monitor_every: Int = F(1000, ge=0,
                            description="Steps between energy-growth and overlap checks "
                                        "(0 = never); a multiple of check_every")

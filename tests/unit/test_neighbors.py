@@ -487,3 +487,30 @@ def test_empty_and_isolated():
     nb.build_rows(st0, skin=0.1)
     assert nb.spatial_sort(st0).size == 0
     assert not nb.needs_rebuild(st0)
+
+
+def test_fast_elements_are_checked_before_they_can_cross_the_skin():
+    """Two unbonded discs fly at each other, each moving 0.3 of the half skin per step: with a
+    fixed 10-step check interval they would touch unseen (overlapping deeper at every step until the
+    next check). The engine checks sooner while elements are fast (geodem.core.engine), so the
+    pair is in the rows before it touches, and the collision is resolved from its first step.
+    (With the fixed interval: touching at step 17, first seen at step 20.)"""
+    from geodem.build.lattice import bonded_state
+    from geodem.core.engine import Simulation
+
+    st = bonded_state(np.array([[0.0, 0.0], [1.25, 0.0]]), 0.5, density=1000.0, kn=1e6,
+                      ks=0.0, xb=0.0, fs0=0.0, mu=0.0, gap=1e-6, thickness=1.0)
+    assert (st.cstate == 0).all() and st.skin == pytest.approx(0.05)
+    sim = Simulation(st, check_every=10, monitor_every=0)
+    v = 0.3 * 0.5 * st.skin / st.dt  # 0.3 half skins per step
+    st.v[0, 0], st.v[1, 0] = v, -v
+    sim.backend.push(("v",))
+    touched = False
+    for _ in range(30):
+        sim.run(1)
+        s = sim.sync()
+        gap = abs(s.x[1, 0] - s.x[0, 0]) - 1.0
+        if gap < 0.0:
+            touched = True
+            assert 1 in s.nbr[0].tolist(), f"touching at step {s.step} but not in the rows"
+    assert touched and sim.rebuilds >= 1
