@@ -6,6 +6,10 @@
   :func:`geodem.workflow.brazilian.prune_loose`). Groups: ``boundary`` (the elements within
   ``boundary_depth`` d_mean of the four outer faces) and ``wall`` (the elements within one
   d_mean of the borehole surface). 2-D thickness = ``d_mean`` (the 2-D area convention).
+  ``coarsen: {factor, band, transition}`` (default off) builds a *graded* plate: fine elements
+  (d_mean) within ``band`` of the borehole wall, growing to ``factor`` x d_mean over
+  ``transition`` beyond it (:mod:`geodem.build.graded`; ``HydrofracPlate._graded``), so a
+  hole many grains wide costs a fraction of the uniform plate's elements.
 
 * step ``hydraulic_fracturing``: the pore-fluid field (:class:`geodem.fields.pore.PoreField`)
   is coupled to the plate; the borehole is a *cavity* whose pores are held at the injection
@@ -77,6 +81,7 @@ import numpy as np
 from pydantic import model_validator
 
 from geodem.workflow.labtests import material_problems
+from geodem.workflow.landslide import CoarsenSpec
 from geodem.workflow.models import BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, Strict, StepBase, register_model, \
     register_step
@@ -88,9 +93,23 @@ COLUMNS = ("step", "time", "injection_pressure", "cracks_total", "cracks_tensile
            "mass_balance_rel_error", "penetration_depth")
 FRAMES_DIR = "hf_frames"
 CRACK_LINK = 2.5  # x d_mean: cracks closer than this belong to one chain (an arm)
+JAM_RETRIES = (1.0, 2.0, 4.0)  # graded plate: jamming overlaps tried, x RELAX_OVERLAP x xb
 
 
 # ============================================================================ model
+class PlateCoarsenSpec(CoarsenSpec):
+    """Graded plate (docs/graded.md, docs/hydraulic_fracturing.md): fine elements (d_mean) in
+    a band around the borehole, where the fracture starts, coarser ones (up to factor x
+    d_mean) further out, with a linear transition (:mod:`geodem.build.graded`)."""
+
+    band: float = F(0.03, unit="m", gt=0, le=1e4,
+                    description="Fine elements (d_mean) up to this distance from the borehole "
+                                "wall (at least one d_mean)")
+    transition: float = F(0.02, unit="m", ge=0, le=1e4,
+                          description="Distance beyond the fine band over which the diameter "
+                                      "grows linearly from d_mean to factor x d_mean (0: a step)")
+
+
 @register_model("hydrofrac_plate")
 class HydrofracPlate(ModelBase):
     """A square 2-D bonded plate with an injection borehole cut at its centre (groups
@@ -111,11 +130,40 @@ class HydrofracPlate(ModelBase):
     material: Name = F(..., description="Material name (rock properties, per-size or direct "
                                         "element parameters, or a library material)")
     boundary_depth: float = F(1.0, gt=0, le=5,
-                              description="Depth of the boundary group in d_mean")
+                              description="Depth of the boundary group in d_mean (graded "
+                                          "plate: in each element's nominal diameter)")
+    coarsen: Optional[PlateCoarsenSpec] = F(None, description="Graded plate: coarser elements "
+                                                              "away from the borehole "
+                                                              "(docs/hydraulic_fracturing.md); "
+                                                              "default off (uniform d_mean)")
+
+    @property
+    def centre(self):
+        return np.full(2, 0.5 * self.size)
+
+    def local_d(self, x):
+        """Nominal element diameter [m] at the points ``x`` (N, 2): ``d_mean``, or with
+        ``coarsen`` the graded size field (:func:`geodem.build.graded.ramp` of the distance
+        beyond ``hole_radius + band`` from the borehole centre)."""
+        x = np.asarray(x, float).reshape(-1, 2)
+        if self.coarsen is None:
+            return np.full(len(x), float(self.d_mean))
+        from geodem.build.graded import ramp
+
+        c = self.coarsen
+        excess = np.linalg.norm(x - self.centre, axis=1) - (self.hole_radius + c.band)
+        return ramp(excess, self.d_mean, c.factor, c.transition)
 
     def n_elements(self):
         hole = math.pi * self.hole_radius ** 2
-        return max(1, int(0.84 * (self.size ** 2 - hole) / (math.pi / 4 * self.d_mean ** 2)))
+        fill = 0.84 / (math.pi / 4 * self.d_mean ** 2)
+        if self.coarsen is None:
+            return max(1, int(fill * (self.size ** 2 - hole)))
+        from geodem.build.graded import expected_count
+
+        n = expected_count(np.zeros(2), np.full(2, self.size), self.local_d, self.d_mean,
+                           self.distri_rate)[0]
+        return max(1, int(n - fill * hole))
 
     def bytes_per_element(self):
         return state_bytes_per_element(2, 8) + 4000
@@ -142,6 +190,10 @@ class HydrofracPlate(ModelBase):
             out.append((("hole_radius",), f"the borehole radius must be at most size / 6 = "
                                           f"{self.size / 6:g} m (a plate, not a ring), got "
                                           f"{self.hole_radius:g} m"))
+        if self.coarsen is not None and self.coarsen.band < self.d_mean:
+            out.append((("coarsen", "band"), f"{self.coarsen.band:g} m is thinner than one "
+                        f"element (d_mean = {self.d_mean:g} m); allowed: band >= d_mean (the "
+                        "fracture starts at the borehole wall: it needs fine elements)"))
         return out + material_problems(cfg, self.material, 2, self.d_mean)
 
     def build(self, cfg):
@@ -149,15 +201,19 @@ class HydrofracPlate(ModelBase):
         from geodem.workflow.brazilian import plate_with_hole
 
         seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
-        st, removed, sm, rep, centre = plate_with_hole(
-            cfg, self.material, (self.size, self.size), self.d_mean, self.distri_rate, seed,
-            self.hole_radius, self.n_across())
+        graded = None
+        if self.coarsen is None:
+            st, removed, sm, rep, centre = plate_with_hole(
+                cfg, self.material, (self.size, self.size), self.d_mean, self.distri_rate,
+                seed, self.hole_radius, self.n_across())
+        else:
+            st, removed, sm, rep, centre, graded = self._graded(cfg, seed)
         st.groups = {"all": 0}
         st.group[:] = 0
         grp.add_group(st, "plate", np.arange(st.n))
         d = self.d_mean
         lo, hi = st.x.min(axis=0), st.x.max(axis=0)
-        depth = self.boundary_depth * d
+        depth = self.boundary_depth * (d if graded is None else self.local_d(st.x)[:, None])
         wall = np.linalg.norm(st.x - centre, axis=1) <= self.hole_radius + d
         edge = np.any((st.x <= lo + depth) | (st.x >= hi - depth), axis=1)
         st.group[:] = 0
@@ -172,7 +228,80 @@ class HydrofracPlate(ModelBase):
                 "material_warnings": list(sm.warnings), "loose_removed": removed,
                 "material_tensile_strength": T, "material_tensile_strength_source": src,
                 "specimen_report": {k: v for k, v in rep.items() if k != "packing"}}
+        if graded is not None:
+            info["graded"] = graded
         return BuiltModel(st, st.x.copy(), self.n_across(), info)
+
+    def _graded(self, cfg, seed):
+        """The graded plate (``coarsen``): a graded packing of the square
+        (:func:`geodem.build.graded.graded_packing`, size field :meth:`local_d`), cemented with
+        the plate's element parameters at d_mean scaled to each element's diameter by the
+        size law (``kn, ks, xb ~ d``, ``fs0 ~ d^2``, mass ``rho x volume``: what the uniform
+        plate's :func:`~geodem.build.specimen.cement` does, so ``factor`` 1 gives the uniform
+        plate's parameters), then made a plate of one thickness, d_mean: ``kn``, ``ks``,
+        ``fs0`` and the mass times ``d_mean / d_nom`` (the size law's discs as thick as wide
+        would make the coarse rings ``d_nom / d_mean`` times stiffer and stronger per unit
+        length, and the stiff ring would shield the borehole wall: :func:`wall_hoop_stress`;
+        docs/hydraulic_fracturing.md), and balanced; the borehole cut and the loose elements
+        pruned as in :func:`geodem.workflow.brazilian.plate_with_hole`. The packing is jammed
+        to a mean contact overlap of ``RELAX_OVERLAP`` (0.1) x xb and pairs within
+        ``CEMENT_GAP`` (0.1) x xb are bonded, as ``make_specimen`` relaxes and bonds its
+        packing: a bonded packing
+        released from overlaps larger than xb springs apart and breaks its bonds (at the
+        jamming default of 1e-4 d, 2.5 xb of the sandstone, 40 % of the bonds broke); when
+        the jamming finds no state so near its jamming point it is tried at 2 and 4 times that.
+        Returns ``(state, removed, specimen_material, report, centre, graded_info)``."""
+        from geodem.build.graded import graded_packing
+        from geodem.build.shapes import subset_state
+        from geodem.build.specimen import CEMENT_GAP, RELAX_OVERLAP, cement, specimen_params
+        from geodem.core.engine import Simulation
+        from geodem.core.neighbors import spatial_sort
+        from geodem.core.state import new_state
+        from geodem.workflow.brazilian import prune_loose
+        from geodem.workflow.labtests import specimen_material
+        from geodem.workflow.models import BuildError
+
+        d, c, centre = self.d_mean, self.coarsen, self.centre
+        sm = specimen_material(cfg, self.material, 2, d)
+        mat = sm.material
+        params = specimen_params(mat, sm.element, d)
+        for k, mult in enumerate(JAM_RETRIES):
+            try:
+                x, r, dn, prep = graded_packing(
+                    np.zeros(2), np.full(2, self.size), self.local_d, d, self.distri_rate,
+                    seed=seed, overlap=mult * RELAX_OVERLAP * params["xb"] / d)
+                break
+            except RuntimeError as exc:  # no jammed state near so small an overlap
+                if k == len(JAM_RETRIES) - 1:
+                    raise BuildError(("coarsen",), str(exc)) from None
+            except ValueError as exc:
+                raise BuildError(("coarsen",), str(exc)) from None
+        prep["overlap_over_xb"] = mult * RELAX_OVERLAP
+        st = new_state(x, r, 1.0, width=16)
+        rep = cement(st, CEMENT_GAP * params["xb"], params, d_ref=d, rho=mat["rho"],
+                     n_across=self.n_across())
+        # a plate of one thickness (d_mean): cement made each element a disc as thick as wide
+        thick = d * prep["scale"] / dn  # 1 for the fine elements (their d_nom is d x scale)
+        if np.any(thick != 1.0):
+            for key in ("kn", "ks", "fs0", "m"):
+                getattr(st, key)[:] *= thick
+            sim = Simulation(st, monitor_every=0)
+            for _ in range(10):
+                if sim.balance(self.n_across()) < 1e-3:
+                    break
+            st = sim.sync()
+        spatial_sort(st)
+        st = subset_state(st, np.linalg.norm(st.x - centre, axis=1) > self.hole_radius)
+        st, removed = prune_loose(st, 2, n_across=self.n_across())
+        dl = self.local_d(st.x)
+        fine = dl <= d * (1.0 + 1e-9)
+        coarse = (dl >= c.factor * d * (1.0 - 1e-9)) & ~fine
+        info = {"factor": c.factor, "band": c.band, "transition": c.transition,
+                "fine": int(fine.sum()), "transition_elements": int((~fine & ~coarse).sum()),
+                "coarse": int(coarse.sum()), "d_max": float(2.0 * st.r.max()),
+                "cement_bonds_broken": int(rep["bonds_broken"]),
+                **{f"packing_{k}": v for k, v in prep.items()}}
+        return st, removed, sm, rep, centre, info
 
 
 def material_tensile_strength(cfg, name: str, dim: int = 2):
@@ -207,9 +336,47 @@ def hubbert_willis(sigma_H: float, sigma_h: float, T: float, p0: float = 0.0) ->
     return 3.0 * sigma_h - sigma_H + T - p0
 
 
+def wall_hoop_stress(P, a, b, nu, stiffness=None, rings=400):
+    """Hoop stress [Pa, tension positive] at the wall of a borehole of radius ``a`` [m] under
+    the pressure ``P`` [Pa] in a 2-D plate (plane stress, Poisson ratio ``nu``) held at
+    ``u = 0`` on the circle ``r = b`` (the fixed boundary; b = size / 2 for the square
+    plate). ``stiffness(r)``: the in-plane stiffness (modulus x thickness) at radius ``r``
+    relative to the wall's (None: uniform, ``P (1 - k x) / (1 + k x)``, ``x = a^2/b^2``,
+    ``k = (1 + nu) / (1 - nu)``; e.g. ``local_d(r) / d_mean`` for a graded plate whose
+    elements were discs as thick as wide, as the size law makes them: the graded plate is
+    built with one thickness instead, stiffness 1). Lame's ``u = A r + B / r`` in ``rings``
+    rings of constant stiffness, with ``u`` and the radial force per unit length continuous
+    between them."""
+    if stiffness is None:
+        x = (a / b) ** 2
+        k = (1.0 + nu) / (1.0 - nu)
+        return P * (1.0 - k * x) / (1.0 + k * x)
+    edges = np.linspace(a, b, int(rings) + 1)
+    s = np.asarray(stiffness(0.5 * (edges[1:] + edges[:-1])), float)
+    n = s.size
+    M = np.zeros((2 * n, 2 * n))
+    rhs = np.zeros(2 * n)
+
+    def sig_r(k, r):  # radial stress (x (1 - nu^2) / E_wall) of ring k at r, coefficients
+        return s[k] * np.array([1.0 + nu, -(1.0 - nu) / r ** 2])
+
+    M[0, 0:2] = sig_r(0, a)
+    rhs[0] = -P
+    for k in range(n - 1):
+        r = edges[k + 1]
+        M[2 * k + 1, 2 * k:2 * k + 2] = [r, 1.0 / r]
+        M[2 * k + 1, 2 * k + 2:2 * k + 4] = [-r, -1.0 / r]
+        M[2 * k + 2, 2 * k:2 * k + 2] = sig_r(k, r)
+        M[2 * k + 2, 2 * k + 2:2 * k + 4] = -sig_r(k + 1, r)
+    M[2 * n - 1, 2 * n - 2:] = [b, 1.0 / b]
+    A, B = np.linalg.solve(M, rhs)[:2]
+    return float(s[0] * ((1.0 + nu) * A + (1.0 - nu) * B / a ** 2))
+
+
 def connected_cracks(xy, centre, r_wall, link):
     """Indices of the crack points ``xy`` connected to the borehole: chains of points less
-    than ``link`` apart that reach within ``r_wall + link`` of ``centre``."""
+    than ``link`` apart that reach within ``r_wall + link`` of ``centre``. ``link`` may be one
+    value per point (a graded plate: two points are linked within the larger of theirs)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
@@ -217,7 +384,11 @@ def connected_cracks(xy, centre, r_wall, link):
     n = len(xy)
     if n == 0:
         return np.zeros(0, np.int64)
-    pairs = cKDTree(xy).query_pairs(link, output_type="ndarray")
+    pairs = cKDTree(xy).query_pairs(float(np.max(link)), output_type="ndarray")
+    if np.ndim(link) and len(pairs):
+        lk = np.asarray(link, float)
+        dist = np.linalg.norm(xy[pairs[:, 0]] - xy[pairs[:, 1]], axis=1)
+        pairs = pairs[dist <= np.maximum(lk[pairs[:, 0]], lk[pairs[:, 1]])]
     g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)) \
         if len(pairs) else coo_matrix((n, n))
     _, lab = connected_components(g, directed=False)
@@ -589,7 +760,7 @@ class HydraulicFracturing(StepBase):
     def _sample(self, ctx, field, ref, centre, R, d, t_inj0):
         s = ctx.state
         log, xy = self._crack_xy(ctx, ref)
-        conn = connected_cracks(xy, centre, R, CRACK_LINK * d)
+        conn = connected_cracks(xy, centre, R, CRACK_LINK * ctx.cfg.model.local_d(xy))
         reach = float(np.linalg.norm(xy[conn] - centre, axis=1).max()) if conn.size else 0.0
         p_inj = field.bc_pressure("injection")
         cent = s.x[field.cells].mean(axis=1)
@@ -624,7 +795,7 @@ class HydraulicFracturing(StepBase):
         sH, sh = (self.sigma_H, self.sigma_h) if self.boundary == "stress" else (0.0, 0.0)
         hw = hubbert_willis(sH, sh, T, self.p0) if T is not None else None
         log, xy = self._crack_xy(ctx, ref)
-        conn = connected_cracks(xy, centre, R, CRACK_LINK * d)
+        conn = connected_cracks(xy, centre, R, CRACK_LINK * ctx.cfg.model.local_d(xy))
         arms = crack_arms(xy[conn], centre, R + 2.0 * d, self.arm_gap_deg, self.arm_min_cracks)
         dom = max(arms, key=lambda v: (v["reach"], v["count"])) if arms else None
         res = {
@@ -654,6 +825,8 @@ class HydraulicFracturing(StepBase):
             "stopped_by": reason, "samples": len(rows),
             "fluid": field.summary(),
         }
+        if "graded" in ctx.model.info:
+            res["graded"] = ctx.model.info["graded"]
         if dom is not None and self.boundary == "stress":
             res["dominant_crack_misfit_deg"] = axis_misfit_deg(res["dominant_crack_angle_deg"],
                                                                res["sigma_H_angle_deg"])
@@ -982,5 +1155,5 @@ def write_gif(path, frames, centre, R, d, ref):
 
 __all__ = ["HydrofracPlate", "HydraulicFracturing", "FluidSpec", "PoreFlow", "PoreFluidSpec",
            "hubbert_willis", "burst_samples", "penetration_depth", "strip_tensile_strength",
-           "crack_arms", "connected_cracks", "axis_misfit_deg", "boundary_tractions",
-           "material_tensile_strength"]
+           "crack_arms", "connected_cracks", "wall_hoop_stress", "axis_misfit_deg",
+           "boundary_tractions", "material_tensile_strength"]
