@@ -1,7 +1,7 @@
 """The time-step loop and its books: stepping, neighbour rebuilds, crack log, energy, checks.
 
 The loop (``Simulation.run``) does per step exactly two backend calls, ``move`` and ``force``
-(velocity Verlet, see ``geodem.backends.kernels``), and nothing else: no Python loop over
+(velocity Verlet, see ``geodem.backends.step_bodies``), and nothing else: no Python loop over
 elements, no allocation, no host/device copy. Every ``check_every`` steps at most (sooner when
 elements move fast) it asks whether the neighbour rows need a rebuild (skin test), harvests new
 cracks and checks that the state is finite. Energies are computed on demand (``energies``).
