@@ -8,7 +8,8 @@ model and the ``column_collapse`` step.
   passes between them). A channel is: a rough floor of fixed elements of diameter ``d_mean``
   (centre spacing 0.85 d: bumps of about 0.24 d, plus the floor friction), a back wall at
   ``x = 0``, a gate at ``x = L0`` holding the column, and an end wall far beyond the expected
-  runout. The narrower side of every column has ``n = round(10 scale)`` elements
+  runout, reaching up to the floor of the channel above (nothing thrown ahead of the flow
+  leaves its channel). The narrower side of every column has ``n = round(10 scale)`` elements
   (``d_mean = column_size / n``): ``L0 = column_size`` and ``H0 = a column_size`` for ``a >= 1``,
   ``H0 = column_size`` and ``L0 = column_size / a`` below.
 
@@ -23,8 +24,12 @@ model and the ``column_collapse`` step.
   place. The measured ``L0``, ``H0`` and aspect ratio of each packed column are in the model
   information and are what the results use.
 
-  Groups: ``column_K`` (the elements of column K, K = 0, 1, ... in the order of
-  ``aspect_ratios``), ``floor_K``, ``back_K``, ``gate_K``, ``end_K`` (fixed walls).
+  ``packings: N`` builds every column N times, packing ``j`` with the seed ``seed + j``
+  (column seed ``seed + j + 7919 i`` for ratio ``i``; ``N = 1``: the single set of columns).
+
+  Groups: ``column_K`` (the elements of column K, ``K = j len(aspect_ratios) + i`` for packing
+  j of ratio i, in the order of ``aspect_ratios``), ``floor_K``, ``back_K``, ``gate_K``,
+  ``end_K`` (fixed walls).
 
 * step ``column_collapse``: removes every gate at once (its elements are moved behind the back
   wall, outside the channel: an instantaneous release, as in the discrete simulations of
@@ -32,12 +37,13 @@ model and the ``column_collapse`` step.
   damping: ``eta = damping x m / tau``, ``tau = sqrt(H0_max / g)`` of the tallest column
   (default ``damping = 0``: the flow dissipates its energy by friction only; the contact law
   has no normal viscosity, so collisions are elastic). Every ``sample`` x tau it records the
-  kinetic energy and the front of every deposit. The flow is over when every front has moved
-  less than ``still_tolerance`` x d_mean over the last ``still_time`` x tau (and not before
-  ``min_time`` x tau); the elastic rattle left in the heap (no contact damping) is then damped
-  out with MatDEM's standard damping until the kinetic energy is below ``rest_ke`` x the
-  potential energy released, at most ``settle_balances`` standard balances: the deposit is at
-  rest. ``max_time`` x tau caps the flow phase (then ``at_rest: false`` and a warning).
+  kinetic energy and the front of every deposit. The flow is over when every front (of every
+  packing) has moved less than ``still_tolerance`` x d_mean over the last ``still_time`` x tau
+  (and not before ``min_time`` x tau); the elastic rattle left in the heap (no contact
+  damping) is then damped out with MatDEM's standard damping until the kinetic energy is below
+  ``rest_ke`` x the potential energy released, at most ``settle_balances`` standard
+  balances: the deposit is at rest. ``max_time`` x tau caps the flow phase (then
+  ``at_rest: false`` and a warning).
 
   **Runout.** The deposit of a column is the largest cluster of its elements linked by gaps
   smaller than ``link_gap`` x d_mean (isolated or ejected elements and small groups that left
@@ -48,15 +54,19 @@ model and the ``column_collapse`` step.
       (L_inf - L0) / L0 = 1.2 a             a <= 2.3
                         = 1.9 a^(2/3)       a >  2.3
 
-  summary.json: ``aspect_ratios`` (measured), ``runouts`` (normalised runouts),
-  ``runout_reference`` (the law at those ratios), ``runout_rel_errors`` (per column,
-  ``|measured - law| / law``), ``runout_rel_error`` (their maximum), ``runout_lengths`` [m]
-  (``L_inf``), ``final_heights`` [m], ``at_rest``.
+  summary.json, per aspect ratio and averaged over the packings (:func:`packing_means`):
+  ``aspect_ratios`` (measured), ``runouts`` (mean normalised runouts), ``runout_reference``
+  (the law at those ratios), ``runout_rel_errors`` (``|mean - law| / law``),
+  ``runout_rel_error`` (their maximum), ``runout_lengths`` [m] (``L_inf``), ``final_heights``
+  [m], ``at_rest``; ``packings``, ``runouts_per_packing`` (per ratio, every packing's value),
+  ``runout_std`` (their sample standard deviation), ``runout_rel_error_per_packing`` (per
+  packing, its own max error).
 
   Files: ``collapse_history.csv`` (time, kinetic energy, front of every column), per column
   ``collapse_a<a>.png`` (initial and final deposit) and ``collapse_a<a>.vtp`` (final deposit
-  for ParaView: radius, velocity, displacement, column), ``collapse_initial.vtp``,
-  ``collapse_runout.png`` (normalised runout against aspect ratio with the law),
+  for ParaView: radius, velocity, displacement, column; packing j > 0: ``collapse_a<a>_p<j>``),
+  ``collapse_initial.vtp``, ``collapse_runout.png`` (normalised runout against aspect ratio
+  with the law; with several packings every packing and the mean),
   ``collapse_history.png`` (fronts and kinetic energy against time) and ``collapse.gif``
   (the collapse of column ``gif_column``; imageio, else Pillow, else skipped with the reason).
 
@@ -211,7 +221,7 @@ class GranularColumn(ModelBase):
             n += 0.83 * L0 * H0 / el
             n += (L0 * (1.0 + self.channel_length * lube_2005(a)) + 6 * d) / \
                 (FLOOR_SPACING * self.floor_element * d)
-            n += 2 * (H0 + 2 * d) / (FLOOR_SPACING * 0.5 * d)
+            n += 2 * (H0 + 2 * d) / (FLOOR_SPACING * 0.5 * d) + (H0 + 4 * d) / (FLOOR_SPACING * d)
         return max(1, int(n * self.packings))
 
     def bytes_per_element(self):
@@ -369,8 +379,13 @@ def _channel(col, L0, H0, x_end, d, k, mu_floor, mu_wall, d_floor):
                    lo=[0.0, 0.6 * d], hi=[L0, H0 + 2.0 * d], names=[f"back_{k}"])
     st = add_walls(st, ["xmax"], d_wall=dw, margin=0.0, kn=kn * dw, mu=mu_wall,
                    lo=[0.0, 0.6 * d], hi=[L0, H0 + d], names=[f"gate_{k}"])
+    # the end wall reaches up to the next channel's floor (its elements' bottom 5 d - d_floor
+    # above the column): elements ejected ahead of the flow do not fly over it and fall into
+    # the channels below. Its element centres span [0.6 d, top] at the wall spacing exactly
+    gaps = math.floor((H0 + 4.0 * d - d_floor - 0.6 * d) / (FLOOR_SPACING * d))
     st = add_walls(st, ["xmax"], d_wall=d, margin=0.0, kn=kn * d, mu=mu_wall,
-                   lo=[0.0, 0.6 * d], hi=[x_end, 3.0 * d], names=[f"end_{k}"])
+                   lo=[0.0, 0.6 * d], hi=[x_end, (0.6 + FLOOR_SPACING * gaps) * d],
+                   names=[f"end_{k}"])
     gid = st.groups.pop("column")
     st.groups[f"column_{k}"] = gid
     return st
@@ -699,7 +714,8 @@ class _Collapse:
                         "runout": nr, "reference": ref, "rel_error": abs(nr - ref) / ref,
                         "final_height": float((y + st.r[i]).max()),
                         "excluded_elements": int(i.size - members.size),
-                        "reached_end_wall": bool(front >= c["x_end"] - 1.5 * self.d)})
+                        "reached_end_wall": bool(front >= c["x_end"] - 1.5 * self.d),
+                        "packing": int(c.get("packing", 0)), "seed": c.get("seed")})
             if per[-1]["reached_end_wall"]:
                 ctx.log(f"warning: column {k} (a = {a:.3g}) reached its end wall: runout "
                         "truncated (raise model.channel_length)")

@@ -1,19 +1,22 @@
-"""Granular column collapse (geodem/workflow/collapse.py, workflows/column_collapse.yaml).
+"""Granular column collapse (geodem/workflow/collapse.py, workflows/column_collapse.yaml,
+workflows/column_collapse_mean.yaml).
 
-Default suite: the reference law and the front detection on hand-made input, bad input (exit
-2 naming the field), and one small column (a = 2, 6 elements across, ~300 elements with the
-walls) run end to end: summary keys, pictures, GIF, VTK, the deposit at rest, and the runout
-against Lube et al. (2005) within RUNOUT_TOLERANCE.
+Default suite: the reference law, the front detection and the mean over packings on hand-made
+input, bad input (exit 2 naming the field), one small column (a = 2, 6 elements across, ~300
+elements with the walls) run end to end: summary keys, pictures, GIF, VTK, the deposit at rest,
+and the runout against Lube et al. (2005) within RUNOUT_TOLERANCE; and a tiny column (a = 1,
+4 elements across) with two packings: two different runouts, summary = their mean.
 
 Tolerance of the small run: 0.35. The shipped workflow has rotating elements with rolling
 resistance 0.3 and restitution 0.9; at 6 elements across one grain more or less at the front is
-10 % of L0 and packings of different seeds differ by up to 0.2 (docs/column_collapse.md;
-measured 0.02). The test guards the measurement and gross failures (a column that does not
-fall, a deposit scattered over the channel: errors of 0.6 to > 1) rather than the validation
-target 0.15, which the full run below reports.
+10 % of L0 and packings of different seeds differ by up to 0.3 (docs/column_collapse.md;
+measured 0.19). The test guards the measurement and gross failures (a column that does
+not fall, a deposit scattered over the channel: errors of 0.6 to > 1) rather than the
+validation target 0.15, which the averaged run below reports.
 
-Slow (``-m slow``): the shipped workflow at its default size (four aspect ratios, about 1,700
-elements, a few minutes on one core)::
+Slow (``-m slow``): workflows/column_collapse_mean.yaml, four aspect ratios x four packings
+(~8,700 elements, 7-8 minutes on one core), the max error of the mean runouts against the
+measured bound RUNOUT_MEAN_BOUND (the target 0.15 is not met: docs/column_collapse.md)::
 
     NUMBA_NUM_THREADS=1 PYTHONPATH=. python -m pytest tests/integration/test_column_collapse.py -m slow -q
 """
@@ -34,7 +37,9 @@ load_builtins()
 
 ROOT = Path(__file__).resolve().parents[2]
 WF = ROOT / "workflows" / "column_collapse.yaml"
+WF_MEAN = ROOT / "workflows" / "column_collapse_mean.yaml"
 RUNOUT_TOLERANCE = 0.35
+RUNOUT_MEAN_BOUND = 0.35
 KEYS = ("aspect_ratios", "runouts", "runout_rel_error", "runout_reference", "runout_rel_errors",
         "runout_lengths", "final_heights", "at_rest")
 
@@ -110,7 +115,10 @@ def small_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("collapse")
     code, summary = run_workflow(
         WF, out / "run", sets=["model.aspect_ratios=[2.0]", "model.scale=0.6",
-                               "steps.collapse.gif_frames=8", "outputs.observables.every=2000"],
+                               "steps.collapse.gif_frames=8", "outputs.observables.every=2000",
+                               # two grains thrown up at the end of the flow take ~60 standard
+                               # balances to land (the default 40 stops them in mid-air)
+                               "steps.collapse.settle_balances=100"],
         echo=False)
     return code, summary, out / "run"
 
@@ -177,11 +185,17 @@ def test_two_packings_give_two_runouts_and_their_mean(tmp_path):
 
 # ------------------------------------------------------------------ the validation
 @pytest.mark.slow
-def test_default_workflow_four_aspect_ratios(tmp_path):
-    code, s = run_workflow(WF, tmp_path / "run", echo=False)
+def test_mean_of_four_packings_against_lube_2005(tmp_path):
+    # workflows/column_collapse_mean.yaml: four packings of every column (16 channels, ~8,700
+    # elements, 7-8 minutes on one core)
+    code, s = run_workflow(WF_MEAN, tmp_path / "run", sets=["steps.collapse.gif=false"],
+                           echo=False)
     assert code == 0
-    assert len(s["runouts"]) == 4 and s["at_rest"] is True
-    # the runout grows with the aspect ratio
+    assert s["packings"] == 4 and len(s["runouts"]) == 4 and s["at_rest"] is True
+    assert all(len(v) == 4 for v in s["runouts_per_packing"])
+    # the mean runout grows with the aspect ratio
     assert np.all(np.diff(s["runouts"]) > 0)
-    # measured at the default size: 0.175 (docs/column_collapse.md); target 0.15 not met
-    assert s["runout_rel_error"] < 0.25
+    # measured 0.265 (docs/column_collapse.md): the target 0.15 is not met, the a = 2 and
+    # a = 4 columns run 26 % long; four-packing means at rolling resistance 0.3 - 0.5 gave
+    # 0.265 - 0.309. The bound catches a model that got worse, beyond the chaos of the flows
+    assert s["runout_rel_error"] <= RUNOUT_MEAN_BOUND
