@@ -6,12 +6,10 @@ elements, no allocation, no host/device copy. Every ``check_every`` steps at mos
 elements move fast) it asks whether the neighbour rows need a rebuild (skin test), harvests new
 cracks and checks that the state is finite. Energies are computed on demand (``energies``).
 
-Skin test: an element's displacement since the last rebuild, ``disp``, may reach half the skin
-before a pair it approaches could touch unseen. With ``u = dt v_max`` the farthest an element
-goes in a step at the current top speed, the rows are rebuilt when ``disp + u > skin/2``, and the
-next check comes after ``floor((skin/2 - disp)/u)`` steps (at most ``check_every``). A fixed
-interval would let fast elements (a landslide's front) cross the skin between two checks and
-touch unseen: 13 such pairs were measured in the default landslide before this rule.
+Skin test (``geodem.core.neighbors.check_plan``): the rows are rebuilt when the next step could
+take an element past half the skin since the last rebuild, and the next check comes before the
+current top speed could; a fixed interval let the default landslide's front touch 13 pairs
+unseen.
 
 Energy balance (PHYSICS.md section 4)::
 
@@ -26,7 +24,7 @@ import math
 import numpy as np
 
 from geodem.backends import select
-from geodem.core import timestep
+from geodem.core import neighbors, timestep
 from geodem.core.state import BONDED, BROKEN_BASE, broken_code, decode_broken
 
 
@@ -243,21 +241,15 @@ class Simulation:
         interval = self.check_every
         if s.skin > 0.0:
             disp, speed = b.max_disp_speed()
-            u = s.dt * speed  # farthest an element goes in one step at the current top speed
-            half = 0.5 * s.skin
-            if disp + u > half:
-                from geodem.core import neighbors
-
+            rebuild, interval = neighbors.check_plan(disp, s.dt * speed, s.skin, self.check_every)
+            if rebuild:
                 b.pull(("x", "v", "x_ref") + s.row_array_names())
                 self._harvest_host()
                 neighbors.build_rows(s)
                 self.rebuilds += 1
                 b.push()
-                disp = 0.0
             else:
                 self._harvest()
-            if u > 0.0:
-                interval = max(1, min(self.check_every, int((half - disp) / u)))
         else:
             self._harvest()
         self._next_check = s.step + interval

@@ -20,7 +20,8 @@ Criteria used by :func:`build_rows` (the "contact range")
 
 The rows stay valid until some element has moved more than ``skin / 2`` from its
 position at the last build (``x_ref``): two elements approaching each other then close at
-most ``skin``. :func:`needs_rebuild` implements that test (with an optional look-ahead).
+most ``skin``. :func:`needs_rebuild` implements that test (with an optional look-ahead);
+:func:`check_plan` is the engine's schedule built on it (rebuild now? next check when?).
 Radii must not grow between builds (or the skin must cover the growth).
 
 All heavy work is in numba kernels (``cache=True``, ``parallel=True`` where useful).
@@ -40,6 +41,7 @@ from geodem.core.state import State
 __all__ = [
     "build_rows",
     "needs_rebuild",
+    "check_plan",
     "rows_from_pairs",
     "spatial_sort",
     "row_counts",
@@ -479,6 +481,25 @@ def needs_rebuild(state: State, steps_ahead: int = 0) -> bool:
     md2, mv2 = _max_disp_speed(state.x, state.x_ref, state.v)
     reach = math.sqrt(md2) + max(int(steps_ahead), 0) * abs(float(state.dt)) * math.sqrt(mv2)
     return not (reach <= 0.5 * skin)
+
+
+def check_plan(disp: float, u: float, skin: float, max_interval: int) -> tuple[bool, int]:
+    """The engine's neighbour-check schedule: ``(rebuild, interval)``.
+
+    ``disp`` [m]: largest displacement since the last build; ``u = dt v_max`` [m]: the farthest
+    an element goes in one step at the current top speed. Rebuild now when the next step could
+    take an element past ``skin/2`` (``disp + u > skin/2``, :func:`needs_rebuild` with a
+    one-step look-ahead); then check again after ``floor((skin/2 - disp)/u)`` steps (``disp``
+    = 0 after a rebuild), between 1 and ``max_interval``. A fixed interval lets fast elements
+    cross the skin between two checks and touch unseen (docs/landslide.md).
+    """
+    half = 0.5 * skin
+    rebuild = disp + u > half
+    if rebuild:
+        disp = 0.0
+    if u <= 0.0:
+        return rebuild, max_interval
+    return rebuild, max(1, min(max_interval, int((half - disp) / u)))
 
 
 # ----------------------------------------------------------------------------- explicit pairs

@@ -489,6 +489,20 @@ def test_empty_and_isolated():
     assert not nb.needs_rebuild(st0)
 
 
+def test_check_plan_by_hand():
+    skin = 0.1  # half skin 0.05
+    # slow: no rebuild, the longest interval
+    assert nb.check_plan(0.01, 0.001, skin, 10) == (False, 10)
+    # (0.05 - 0.03) / 0.004 = 5 steps of room left
+    assert nb.check_plan(0.03, 0.004, skin, 10) == (False, 5)
+    # the next step could pass half the skin: rebuild, then 0.05 / 0.02 = 2.5 -> 2 steps
+    assert nb.check_plan(0.04, 0.02, skin, 10) == (True, 2)
+    # faster than half a skin per step: rebuild, and check at every step
+    assert nb.check_plan(0.0, 0.2, skin, 10) == (True, 1)
+    # at rest
+    assert nb.check_plan(0.0, 0.0, skin, 10) == (False, 10)
+
+
 def test_fast_elements_are_checked_before_they_can_cross_the_skin():
     """Two unbonded discs fly at each other, each moving 0.3 of the half skin per step: with a
     fixed 10-step check interval they would touch unseen (overlapping deeper at every step until the
