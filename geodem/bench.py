@@ -219,6 +219,8 @@ def bench_one(state, backend: str, steps: int | None = None, copy: bool = True) 
         # generated specimen starts with overlaps near the monitor's limit)
         kw["monitor_every"] = 0
     sim = Simulation(st, backend=backend, **kw)
+    # the backend's own buffers and tables count too (numba: the threads' force buffers)
+    scratch = getattr(sim.backend, "scratch_nbytes", lambda: 0)()
     # warm-up: compiles the kernels on first use; not timed
     t0 = time.perf_counter()
     sim.run(2)
@@ -248,7 +250,8 @@ def bench_one(state, backend: str, steps: int | None = None, copy: bool = True) 
         "dim": st.dim,
         "n": int(n),
         "element_steps_per_s": n * steps / wall,
-        "bytes_per_element": bytes_per_element,
+        "bytes_per_element": bytes_per_element + scratch / n,
+        "state_bytes_per_element": bytes_per_element,
         "contacts_per_element": contacts,
         "steps": int(steps),
         "wall_s": wall,
@@ -278,11 +281,14 @@ def run_bench(sizes=DEFAULT_SIZES, backends=None, steps=None, dim=3, seed=0, pro
     progress: ``callable(str)`` receiving progress and skip messages, or None.
 
     Returns one record per (size, backend) that was run, with the keys ``backend, dim, n,
-    element_steps_per_s, bytes_per_element, contacts_per_element, steps, wall_s, threads,
-    rebuilds, kernel_element_steps_per_s, kernel_steps, bonds_broken, warmup_s``.
+    element_steps_per_s, bytes_per_element, state_bytes_per_element, contacts_per_element, steps,
+    wall_s, threads, rebuilds, kernel_element_steps_per_s, kernel_steps, bonds_broken,
+    warmup_s``.
     ``element_steps_per_s`` is ``n * steps / wall_s`` of ``Simulation.run`` (checks and neighbour
-    rebuilds included); ``kernel_element_steps_per_s`` times the bare step kernels alone. ``bytes_per_element`` is ``state.nbytes() / n`` (all state
-    arrays); ``contacts_per_element`` the mean number of valid row entries.
+    rebuilds included); ``kernel_element_steps_per_s`` times the bare step kernels alone.
+    ``bytes_per_element`` is the memory of the model per element: ``state.nbytes() / n`` (all
+    state arrays, also ``state_bytes_per_element``) plus the backend's own buffers and tables
+    (``scratch_nbytes``); ``contacts_per_element`` the mean number of valid row entries.
     """
     sizes = _check_sizes(sizes)
     names = _check_backends(backends)

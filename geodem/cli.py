@@ -392,8 +392,8 @@ def bench(
                   "-" if r["rebuilds"] is None else str(r["rebuilds"]))
     con.print(t)
     con.print("el-steps/s: element-steps per second of Simulation.run (checks and neighbour "
-              "rebuilds included); kernels: the bare move + force step; B/el: state bytes per "
-              "element; contacts: mean row entries per element", highlight=False)
+              "rebuilds included); kernels: the bare move + force step; B/el: bytes per "
+              "element (state and the backend's buffers); contacts: mean row entries per element", highlight=False)
     if not records:
         con.print("no run was made (see the messages above)")
 

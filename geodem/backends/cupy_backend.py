@@ -127,6 +127,12 @@ class CupyBackend:
             host = arr if self.xp is np else arr.get()
             getattr(self.s, k)[...] = host
 
+    def settle(self):
+        """End of a run: nothing to do (the host copy is refreshed by ``pull``)."""
+
+    def scratch_nbytes(self) -> int:
+        return 0
+
     def all_finite(self):
         xp, d = self.xp, self.dev
         return bool(xp.isfinite(d["x"]).all() and xp.isfinite(d["v"]).all())

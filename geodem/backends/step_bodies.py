@@ -56,6 +56,74 @@ def dof_step(free, v, a, fc, m, eta, dt, ddx):
     return v, fc / m, 0.0, -0.5 * fc * ddx
 
 
+def translate_dofs(i, f0, f1, f2, v, a, dx, free, fload, mi, etai, g0, g1, g2, dt):
+    # the translational DOFs of element i after the force pass, contact force (f0, f1, f2):
+    # a free DOF takes gravity and its load too (dof_free); a fixed or prescribed one keeps
+    # v and stores the reaction F/m, whose work over the step's second half it books.
+    # Returns (viscous heat, external work) [J].
+    qv = 0.0
+    we = 0.0
+    for d in range(DIM):
+        if d == 0:
+            fc = f0
+            g = g0
+        elif d == 1:
+            fc = f1
+            g = g1
+        else:
+            fc = f2
+            g = g2
+        if free[i, d] != 0.0:
+            vn, an, dq = dof_free(v[i, d], a[i, d], fc + mi * g + fload[i, d], mi, etai, dt,
+                                  dx[i, d])
+            v[i, d] = vn
+            a[i, d] = an
+            qv += dq
+        else:
+            a[i, d] = fc / mi
+            we -= 0.5 * fc * dx[i, d]
+    return qv, we
+
+
+def own_position(i, x, dx):
+    # element i's position and step displacement (z = 0 in 2-D)
+    if DIM == 3:
+        return x[i, 0], x[i, 1], x[i, 2], dx[i, 0], dx[i, 1], dx[i, 2]
+    return x[i, 0], x[i, 1], 0.0, dx[i, 0], dx[i, 1], 0.0
+
+
+def branch(j, x, dx, xi0, xi1, xi2, di0, di1, di2):
+    # branch vector x_j - x_i and relative displacement dx_j - dx_i of the step (z = 0 in 2-D)
+    if DIM == 3:
+        return (x[j, 0] - xi0, x[j, 1] - xi1, x[j, 2] - xi2,
+                dx[j, 0] - di0, dx[j, 1] - di1, dx[j, 2] - di2)
+    return x[j, 0] - xi0, x[j, 1] - xi1, 0.0, dx[j, 0] - di0, dx[j, 1] - di1, 0.0
+
+
+def own_params(i, props):
+    # props columns: r, kn, ks, xb, fs0, mu, mu_r, zeta (one cache line per element)
+    return props[i, 0], props[i, 1], props[i, 2], props[i, 3], props[i, 4], props[i, 5]
+
+
+def row_contact(i, k, j, bx, by, bz, rx, ry, rz, props, pi, fs, brate, cs, code_t, code_s,
+                hertz):
+    # the law for entry k of row i (partner j, branch b, relative displacement r of the
+    # step, i's parameters pi); stores the new shear spring in the entry, returns the law's
+    # tuple (geodem.core.law.contact)
+    ri, kni, ksi, xbi, fs0i, mui = pi
+    s2 = 0.0
+    if DIM == 3:
+        s2 = fs[i, k, 2]
+    out = contact(bx, by, bz, rx, ry, rz, fs[i, k, 0], fs[i, k, 1], s2,
+                  ri, props[j, 0], kni, props[j, 1], ksi, props[j, 2], xbi, props[j, 3],
+                  fs0i, props[j, 4], mui, props[j, 5], brate[i, k], cs, code_t, code_s, hertz)
+    fs[i, k, 0] = out[4]
+    fs[i, k, 1] = out[5]
+    if DIM == 3:
+        fs[i, k, 2] = out[6]
+    return out
+
+
 def move_body(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
               w, wa, dth, rfree, inertia, fdash):
     qv = 0.0
@@ -94,22 +162,9 @@ def force_body(i, x, v, a, dx, free, fload, props, m, eta,
     # the options' arrays come as one tuple: seven more arguments of the inlined body made
     # the plain kernel 15-25 % slower (measured), one tuple costs nothing
     w, wa, dth, rfree, inertia, fdash, mr = ext
-    xi0 = x[i, 0]
-    xi1 = x[i, 1]
-    di0 = dx[i, 0]
-    di1 = dx[i, 1]
-    xi2 = 0.0
-    di2 = 0.0
-    if DIM == 3:
-        xi2 = x[i, 2]
-        di2 = dx[i, 2]
-    # props columns: r, kn, ks, xb, fs0, mu, mu_r (one cache line per element)
-    ri = props[i, 0]
-    kni = props[i, 1]
-    ksi = props[i, 2]
-    xbi = props[i, 3]
-    fs0i = props[i, 4]
-    mui = props[i, 5]
+    xi0, xi1, xi2, di0, di1, di2 = own_position(i, x, dx)
+    pi = own_params(i, props)
+    ri, kni, ksi = pi[0], pi[1], pi[2]  # the rotation and the dashpot need these
     f0 = 0.0
     f1 = 0.0
     f2 = 0.0
@@ -126,17 +181,7 @@ def force_body(i, x, v, a, dx, free, fload, props, m, eta,
         j = nbr[i, k]
         if j < 0:
             break
-        ex = 0.0
-        ez = 0.0
-        s2 = 0.0
-        if DIM == 3:
-            ex = x[j, 2] - xi2
-            ez = dx[j, 2] - di2
-            s2 = fs[i, k, 2]
-        bx = x[j, 0] - xi0
-        by = x[j, 1] - xi1
-        rx = dx[j, 0] - di0
-        ry = dx[j, 1] - di1
+        bx, by, ex, rx, ry, ez = branch(j, x, dx, xi0, xi1, xi2, di0, di1, di2)
         if ROT:
             # the law sees the contact point's relative displacement: the rotations
             # move it by -(R_i dth_i + R_j dth_j) x n (symmetric in i, j: j's row gets
@@ -158,16 +203,8 @@ def force_body(i, x, v, a, dx, free, fload, props, m, eta,
                 ry = ry - (cz * cnx - cx * cnz)
                 ez = ez - (cx * cny - cy * cnx)
         cs = cstate[i, k]
-        (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf) = contact(
-            bx, by, ex, rx, ry, ez,
-            fs[i, k, 0], fs[i, k, 1], s2,
-            ri, props[j, 0], kni, props[j, 1], ksi, props[j, 2], xbi, props[j, 3],
-            fs0i, props[j, 4], mui, props[j, 5],
-            brate[i, k], cs, code_t, code_s, hertz)
-        fs[i, k, 0] = sx
-        fs[i, k, 1] = sy
-        if DIM == 3:
-            fs[i, k, 2] = sz
+        (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf) = row_contact(
+            i, k, j, bx, by, ex, rx, ry, ez, props, pi, fs, brate, cs, code_t, code_s, hertz)
         if csn != cs:
             cstate[i, k] = csn
         f0 += fn * nx + sx
@@ -239,26 +276,8 @@ def force_body(i, x, v, a, dx, free, fload, props, m, eta,
         if DIM == 3:
             qv -= 0.5 * d2 * dx[i, 2]
             fdash[i, 2] = d2
-    we = 0.0
-    for d in range(DIM):
-        if d == 0:
-            fc = f0
-            g = g0
-        elif d == 1:
-            fc = f1
-            g = g1
-        else:
-            fc = f2
-            g = g2
-        if free[i, d] != 0.0:
-            vn, an, dq = dof_free(v[i, d], a[i, d], fc + mi * g + fload[i, d], mi, etai, dt,
-                                  dx[i, d])
-            v[i, d] = vn
-            a[i, d] = an
-            qv += dq
-        else:
-            a[i, d] = fc / mi
-            we -= 0.5 * fc * dx[i, d]
+    dq, we = translate_dofs(i, f0, f1, f2, v, a, dx, free, fload, mi, etai, g0, g1, g2, dt)
+    qv += dq
     if ROT:
         ii = inertia[i]
         etar = etai * ii / mi
@@ -307,6 +326,101 @@ def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr):
 
 
 
+# ------------------------------------------------ each contact once (CPU, translation only)
+# The force pass above evaluates every contact twice, once from each row. These bodies
+# evaluate it once, from the row of its owner i < j (the tail of i's sorted row, from
+# ``ostart[i]``), and post the force on j into a buffer of the thread: ``buf`` (N, 6) holds
+# per element the force (columns 0-2) and the half heats q_f, q_bn, q_bs (3-5) that reach it.
+# ``finish_body`` then sums the threads' buffers, empties them and updates the velocities
+# exactly as ``force_body`` does. Only the owner's slot of a contact is stepped: its state
+# code is copied to the partner's slot (``mirror``) when it changes, its shear spring by
+# ``mirror_body`` when the partner slots are wanted (``geodem.backends.numba_backend``).
+def owner_body(i, x, dx, props, nbr, ostart, mirror, cstate, fs, brate, buf,
+               code_t, code_s, hertz):
+    xi0, xi1, xi2, di0, di1, di2 = own_position(i, x, dx)
+    pi = own_params(i, props)
+    f0 = 0.0
+    f1 = 0.0
+    f2 = 0.0
+    qn = 0.0
+    qs = 0.0
+    qf = 0.0
+    for k in range(ostart[i], nbr.shape[1]):
+        j = nbr[i, k]
+        if j < 0:
+            break
+        bx, by, ex, rx, ry, ez = branch(j, x, dx, xi0, xi1, xi2, di0, di1, di2)
+        cs = cstate[i, k]
+        (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf) = row_contact(
+            i, k, j, bx, by, ex, rx, ry, ez, props, pi, fs, brate, cs, code_t, code_s, hertz)
+        if csn != cs:
+            cstate[i, k] = csn
+            cstate[j, mirror[i, k]] = csn
+        a0 = fn * nx + sx
+        a1 = fn * ny + sy
+        f0 += a0
+        f1 += a1
+        buf[j, 0] -= a0
+        buf[j, 1] -= a1
+        if DIM == 3:
+            a2 = fn * nz + sz
+            f2 += a2
+            buf[j, 2] -= a2
+        qn += eqn
+        qs += eqs
+        qf += eqf
+        buf[j, 3] += 0.5 * eqf
+        if eqn != 0.0 or eqs != 0.0:  # breaks are rare: skip the scatter otherwise
+            buf[j, 4] += 0.5 * eqn
+            buf[j, 5] += 0.5 * eqs
+    buf[i, 0] += f0
+    buf[i, 1] += f1
+    buf[i, 2] += f2
+    buf[i, 3] += 0.5 * qf
+    buf[i, 4] += 0.5 * qn
+    buf[i, 5] += 0.5 * qs
+
+
+def finish_body(i, v, a, dx, free, fload, m, eta, buf, q_visc, q_bn, q_bs, q_f, w_ext,
+                g0, g1, g2, dt):
+    f0 = 0.0
+    f1 = 0.0
+    f2 = 0.0
+    qf = 0.0
+    qn = 0.0
+    qs = 0.0
+    for t in range(buf.shape[0]):
+        f0 += buf[t, i, 0]
+        f1 += buf[t, i, 1]
+        f2 += buf[t, i, 2]
+        qf += buf[t, i, 3]
+        qn += buf[t, i, 4]
+        qs += buf[t, i, 5]
+        for c in range(6):
+            buf[t, i, c] = 0.0
+    q_bn[i] += qn
+    q_bs[i] += qs
+    q_f[i] += qf
+    qv, we = translate_dofs(i, f0, f1, f2, v, a, dx, free, fload, m[i], eta[i],
+                            g0, g1, g2, dt)
+    q_visc[i] += qv
+    w_ext[i] += we
+
+
+def mirror_body(i, nbr, ostart, mirror, cstate, fs):
+    # the partner's slot of each contact i owns gets its state: same code, opposite spring
+    for k in range(ostart[i], nbr.shape[1]):
+        j = nbr[i, k]
+        if j < 0:
+            break
+        c = mirror[i, k]
+        # guarded: tables older than the rows never write into a wrong slot
+        if c >= 0 and nbr[j, c] == i:
+            cstate[j, c] = cstate[i, k]
+            for d in range(DIM):
+                fs[j, c, d] = -fs[i, k, d]
+
+
 # ------------------------------------------------------------------ CPU loops (numba prange)
 def cpu_move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
              w, wa, dth, rfree, inertia, fdash):
@@ -344,3 +458,29 @@ def cpu_force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
         force_body(idx[k], x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                    fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
                    code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr))
+
+
+# each contact once: one contiguous slab of elements per buffer, posting into that buffer.
+# Slab t always posts into buffer t, whichever thread runs it, so the sums (and the results)
+# depend on the number of buffers only, not on the threads' schedule.
+def cpu_force_owner(x, dx, props, nbr, ostart, mirror, cstate, fs, brate, buf,
+                    code_t, code_s, hertz):
+    n = x.shape[0]
+    nb = buf.shape[0]
+    for t in prange(nb):
+        b = buf[t]
+        for i in range(t * n // nb, (t + 1) * n // nb):
+            owner_body(i, x, dx, props, nbr, ostart, mirror, cstate, fs, brate, b,
+                       code_t, code_s, hertz)
+
+
+def cpu_finish(v, a, dx, free, fload, m, eta, buf, q_visc, q_bn, q_bs, q_f, w_ext,
+               g0, g1, g2, dt):
+    for i in prange(v.shape[0]):
+        finish_body(i, v, a, dx, free, fload, m, eta, buf, q_visc, q_bn, q_bs, q_f, w_ext,
+                    g0, g1, g2, dt)
+
+
+def cpu_mirror(nbr, ostart, mirror, cstate, fs):
+    for i in prange(nbr.shape[0]):
+        mirror_body(i, nbr, ostart, mirror, cstate, fs)

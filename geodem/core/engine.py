@@ -197,6 +197,7 @@ class Simulation:
             if callback is not None and every and nxt % every == 0:
                 callback(self)
         self._harvest()
+        b.settle()
         return self
 
     # ------------------------------------------------------------------ coupled fields

@@ -48,6 +48,8 @@ __all__ = [
     "pairs",
     "check_rows",
     "cell_grid",
+    "owner_tables",
+    "sort_rows",
 ]
 
 _BLOCK = 256  # elements per parallel chunk (thread-local scratch is allocated per chunk)
@@ -688,6 +690,60 @@ def _copy_rows(src, dst):
             dst[k, a] = src[k, a]
 
 
+@njit(cache=True, parallel=True)
+def _sort_row_arrays(nbr, cst, fs, br, mr):
+    # insertion sort of each row by neighbour index, moving the pair state (bit views) along
+    n, w = nbr.shape
+    dim = fs.shape[2]
+    nmr = mr.shape[2]
+    moved = 0
+    for i in prange(n):
+        for a in range(1, w):
+            v = nbr[i, a]
+            if v < 0:
+                break
+            if nbr[i, a - 1] <= v:
+                continue
+            moved += 1
+            c = cst[i, a]
+            b = br[i, a]
+            f = np.empty(dim, np.int64)
+            g = np.empty(nmr, np.int64)
+            for d in range(dim):
+                f[d] = fs[i, a, d]
+            for d in range(nmr):
+                g[d] = mr[i, a, d]
+            q = a - 1
+            while q >= 0 and nbr[i, q] > v:
+                nbr[i, q + 1] = nbr[i, q]
+                cst[i, q + 1] = cst[i, q]
+                br[i, q + 1] = br[i, q]
+                for d in range(dim):
+                    fs[i, q + 1, d] = fs[i, q, d]
+                for d in range(nmr):
+                    mr[i, q + 1, d] = mr[i, q, d]
+                q -= 1
+            nbr[i, q + 1] = v
+            cst[i, q + 1] = c
+            br[i, q + 1] = b
+            for d in range(dim):
+                fs[i, q + 1, d] = f[d]
+            for d in range(nmr):
+                mr[i, q + 1, d] = g[d]
+    return moved
+
+
+def sort_rows(state: State) -> int:
+    """Sort every row by neighbour index in place, moving each entry's state (``cstate``,
+    ``fs``, ``brate``, ``mr``) bit for bit with it (the order :func:`build_rows` leaves).
+    A row is a set: the order changes no contact, only the order forces are summed in.
+    Returns the number of entries moved."""
+    _normalize_rows(state)
+    if state.n == 0:
+        return 0
+    return int(_sort_row_arrays(*_row_bits(state)))
+
+
 def spatial_sort(state: State) -> np.ndarray:
     """Reorder all elements in Morton (Z-) order of their positions.
 
@@ -695,8 +751,8 @@ def spatial_sort(state: State) -> np.ndarray:
     sorted stably by the interleaved key (ties by old index: deterministic). Every
     per-element array (``state.array_names()``: element vectors and scalars, group, rows,
     accumulators) is permuted in place; neighbour indices are relabelled through the
-    inverse permutation, so contacts and their state are preserved exactly and rows stay
-    compact (column order inside a row is kept). Returns ``perm``: new element ``k`` is
+    inverse permutation, so contacts and their state are preserved exactly; rows stay
+    compact and are sorted again by the new indices (:func:`sort_rows`). Returns ``perm``: new element ``k`` is
     old element ``perm[k]``.
     """
     n, dim = state.n, state.dim
@@ -727,6 +783,7 @@ def spatial_sort(state: State) -> np.ndarray:
         tmp = scratch[:a.nbytes].view(a2.dtype).reshape(a2.shape)
         _take_rows(a2, perm, tmp)
         _copy_rows(tmp, a2)
+    sort_rows(state)  # relabelled rows: sorted again, as build_rows leaves them
     return perm
 
 
@@ -786,6 +843,66 @@ def pairs(state: State):
     ``state.cstate[i, k]``, ``state.fs[i, k]``, ``state.brate[i, k]``.
     """
     return _pairs(state.nbr)
+
+
+@njit(cache=True, parallel=True)
+def _owner_tables(nbr, ostart, mirror):
+    # per row: first column with j > i, and each entry's column in its partner's row;
+    # returns the number of rows that are unsorted or lack a mirror entry
+    n, w = nbr.shape
+    bad = 0
+    for i in prange(n):
+        ok = True
+        start = w
+        prev = -1
+        for a in range(w):
+            j = nbr[i, a]
+            if j < 0:
+                if start == w:
+                    start = a
+                break
+            if j <= prev or j == i:
+                ok = False
+            prev = j
+            if j > i and start == w:
+                start = a
+            # the mirror entry: binary search in the partner's sorted row
+            lo = 0
+            hi = w
+            while lo < hi:
+                mid = (lo + hi) // 2
+                v = nbr[j, mid]
+                if v >= 0 and v < i:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            if lo < w and nbr[j, lo] == i:
+                mirror[i, a] = lo
+            else:
+                mirror[i, a] = -1
+                ok = False
+        ostart[i] = start
+        if not ok:
+            bad += 1
+    return bad
+
+
+def owner_tables(nbr: np.ndarray):
+    """The tables that let each contact be evaluated once, by its owner ``i < j``.
+
+    Returns ``(ostart, mirror)`` or ``None``: ``ostart[i]`` (int32) is the first column of
+    row ``i`` whose neighbour is above ``i`` (rows are sorted, so the owned entries are the
+    tail of the valid part); ``mirror[i, k]`` (int8 for rows up to 127 wide, else int16)
+    is the column of ``i`` in the row of ``nbr[i, k]``. ``None`` when some row is not
+    sorted, holds a duplicate or itself, or an entry lacks its mirror: such rows are only
+    stepped by the kernels that walk every row entry.
+    """
+    n, w = nbr.shape
+    mirror = np.full((n, w), -1, np.int8 if w <= 127 else np.int16)
+    ostart = np.zeros(n, np.int32)
+    if n and _owner_tables(nbr, ostart, mirror):
+        return None
+    return ostart, mirror
 
 
 @njit(cache=True, parallel=True)

@@ -29,7 +29,9 @@ Element arrays (SI units)
     group        (N,)     int32     group id; names in ``groups``
 
 Contact rows (each contact stored in both elements' rows)
-    nbr          (N, W)   int32     neighbour index, -1 = empty; valid entries first
+    nbr          (N, W)   int32     neighbour index, -1 = empty; valid entries first, sorted
+                                    by index (the numba backend steps a contact once, from
+                                    the lower index's row: geodem.backends.numba_backend)
     cstate       (N, W)   int32     0 contact without bond, 1 bonded,
                                     >= 2 bond broken at ``step`` with ``type``:
                                     ``2 + 2*step + (type-1)`` (type 1 tensile, 2 shear),

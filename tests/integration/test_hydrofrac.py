@@ -148,7 +148,10 @@ def test_small_plate_fractures_with_closed_books(small):
     assert s["energy_closure_rel_error"] < 1e-2
     assert s["sigma_H_angle_deg"] is None  # isotropic: no sigma_H
     # T from the calibration record of materials/sandstone.yaml (Brazilian, 2-D)
-    assert s["tensile_strength"] == pytest.approx(5830465.5934311375)
+    from geodem.materials_library import load_material
+
+    tu = load_material("sandstone").calibrated["2d"]["measured"]["Tu"]
+    assert 3e6 < tu < 1e7 and s["tensile_strength"] == pytest.approx(tu, rel=1e-12)
     assert "calibrated.2d.measured.Tu" in r["tensile_strength_source"]
     assert s["hubbert_willis_pressure"] == s["tensile_strength"]  # sigma = 0, p0 = 0
     # the burst: a pressure the ramp reached, after the first crack

@@ -65,7 +65,9 @@ def test_specimen_deterministic(spec2d):
 def test_specimen_shapes():
     st, rep = make_specimen("disc", [14 * D], D, 0.2, dim=2, seed=0, backend="numba")
     c = st.x.mean(axis=0)
-    assert np.linalg.norm(st.x - c, axis=1).max() <= 7 * D + 1e-9
+    # centres were cut at 7 d from the disc's centre; the mean position is off it and the
+    # cemented packing relaxes outwards, each by a small fraction of d
+    assert np.linalg.norm(st.x - c, axis=1).max() <= 7.05 * D
     assert rep["unbalanced_ratio"] < 1e-3
     with pytest.raises(ValueError):
         make_specimen("cylinder", [10 * D, 10 * D], D, dim=2)
@@ -83,8 +85,9 @@ def test_relax_lifts_a_platen_the_released_packing_grows_into():
     packing.compact(st, backend="numba")
     stf = packing.stiffen(st, 100.0, backend="numba")
     sim = stf["sim"]
-    # put the platen back onto the surface, 0.2 diameters deep: it now holds the packing in
-    packing._move_platen_to_surface(st, -0.2 * D)
+    # put the platen back onto the surface, half a diameter deep (less may fall between the
+    # platen elements and touch nothing, depending on the packing): it now holds the packing in
+    packing._move_platen_to_surface(st, -0.5 * D)
     from geodem.core import neighbors
 
     neighbors.build_rows(st)

@@ -438,11 +438,16 @@ def test_spatial_sort_preserves_pairs_and_state(dim):
     after = directed_entries(st)
     relabelled = {(int(perm[a]), int(perm[b])): v for (a, b), v in after.items()}
     assert relabelled == before
+    # the pair state moved with its pair (above); every other array is permuted
     for name in st.array_names():
-        if name == "nbr":
+        if name in st.row_array_names():
             continue
         assert np.array_equal(getattr(st, name), getattr(old, name)[perm]), name
     nb.check_rows(st)
+    # rows come out sorted by the new indices, as build_rows leaves them
+    valid = st.nbr >= 0
+    steps = np.diff(st.nbr, axis=1)
+    assert (steps[valid[:, 1:]] > 0).all() and valid.sum() == before.__len__()
     # Morton order is spatially coherent: consecutive elements are close on average
     step = np.linalg.norm(np.diff(st.x, axis=0), axis=1).mean()
     step_old = np.linalg.norm(np.diff(old.x, axis=0), axis=1).mean()

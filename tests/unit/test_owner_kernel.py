@@ -1,0 +1,114 @@
+"""Each contact evaluated once, by its owner i < j (geodem.backends.numba_backend)."""
+import numpy as np
+import pytest
+
+from geodem.core import neighbors as nb
+from geodem.core.engine import Simulation
+from geodem.core.state import new_state
+
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
+
+
+def chain_rows():
+    """Four elements: 0-1, 0-2, 1-3, 2-3 (a square), rows sorted."""
+    st = new_state(np.array([[0, 0], [1, 0], [0, 1], [1, 1]], float), 0.5, 1.0, width=4)
+    nb.rows_from_pairs(st, np.array([0, 0, 1, 2]), np.array([1, 2, 3, 3]), bonded=True)
+    return st
+
+
+def test_owner_tables_by_hand():
+    st = chain_rows()
+    # rows: 0: [1, 2]; 1: [0, 3]; 2: [0, 3]; 3: [1, 2]
+    assert st.nbr[:, :2].tolist() == [[1, 2], [0, 3], [0, 3], [1, 2]]
+    ostart, mirror = nb.owner_tables(st.nbr)
+    assert ostart.tolist() == [0, 1, 1, 2]  # 3 owns nothing: its row ends at column 2
+    # 0 is column 0 of row 1 and of row 2; 1 and 2 are columns 0 and 1 of row 3
+    assert mirror[:, :2].tolist() == [[0, 0], [0, 0], [1, 1], [1, 1]]
+    assert mirror.dtype == np.int8
+
+
+def test_owner_tables_refuse_unsorted_or_one_sided_rows_and_sort_rows_mends_order():
+    st = chain_rows()
+    st.nbr[1, :2] = [3, 0]
+    st.fs[1, 0] = [5.0, 6.0]  # the pair 1-3's spring moves with it
+    assert nb.owner_tables(st.nbr) is None
+    assert nb.sort_rows(st) == 1
+    assert st.nbr[1, :2].tolist() == [0, 3] and st.fs[1, 1].tolist() == [5.0, 6.0]
+    assert nb.owner_tables(st.nbr) is not None
+    st.nbr[3, 1] = -1  # 2 lists 3, 3 no longer lists 2
+    assert nb.owner_tables(st.nbr) is None
+
+
+def breaking_block(n=1500):
+    from geodem.bench import SPACING, build_specimen
+
+    st = build_specimen(n)
+    st.xb[:] = 0.004 * SPACING  # the misfits' vibration breaks a share of the bonds
+    st.fs0[:] = 2.0e-3 * st.kn * SPACING
+    return st
+
+
+def test_each_contact_once_matches_both_rows_and_leaves_the_state_complete():
+    a = breaking_block()
+    b = a.copy()
+    sa = Simulation(a, backend="numba", monitor_every=0)
+    sb = Simulation(b, backend="numba", monitor_every=0)
+    sb.backend.once = False
+    assert sa.backend.tables is not None
+    sa.run(300)
+    sb.run(300)
+    ca, cb = sa.crack_log(), sb.crack_log()
+    assert ca.size > 20  # the test must see bonds break, in tension and in shear
+    assert set(np.unique(ca["type"]).tolist()) == {1, 2}
+    # same contacts break at the same steps; forces agree to round-off (summation order)
+    assert np.array_equal(np.sort(ca, order=["i", "j"]), np.sort(cb, order=["i", "j"]))
+    assert np.array_equal(a.cstate, b.cstate)
+    scale = np.abs(b.v).max()
+    assert np.abs(a.v - b.v).max() < 1e-9 * scale
+    assert np.abs(a.fs - b.fs).max() < 1e-9 * np.abs(b.fs).max()
+    # after run every partner slot holds exactly the opposite of its owner's spring
+    i, j, k = nb.pairs(a)
+    kj = np.array([np.flatnonzero(a.nbr[q] == p)[0] for p, q in zip(i, j)])
+    assert np.array_equal(a.fs[j, kj], -a.fs[i, k])
+    assert np.array_equal(a.cstate[j, kj], a.cstate[i, k])
+    # energy books agree (heat of the breaks booked half on each side)
+    ea, eb = sa.energies(), sb.energies()
+    assert eb["heat_break_normal"] > 0 and eb["heat_break_shear"] > 0
+    for key in ("kinetic", "elastic", "heat_break_normal", "heat_break_shear", "heat_friction",
+                "heat_viscous", "total", "closure_error"):
+        assert ea[key] == pytest.approx(eb[key], rel=1e-8, abs=1e-12 * abs(eb["total"])), key
+    assert not sa.backend.buf.any()  # the threads' buffers are emptied every step
+
+
+def test_rows_changed_by_a_rebuild_get_new_tables():
+    a = breaking_block(600)
+    sim = Simulation(a, backend="numba", monitor_every=0)
+    sim.run(5)
+    old = sim.backend.tables
+    a.x[:] += 0.0  # same geometry, narrower rows: a rebuild with a new width
+    nb.build_rows(a, width=a.width + 4)
+    sim.backend.push()
+    ostart, mirror = sim.backend.tables
+    assert mirror.shape == a.nbr.shape and mirror is not old[1]
+    assert np.array_equal((ostart, mirror)[0], nb.owner_tables(a.nbr)[0])
+    sim.run(5)  # and stepping goes on (the monitor would stop a corrupted run)
+    assert np.isfinite(a.v).all()
+
+
+def test_results_do_not_depend_on_how_many_threads_run_the_buffers():
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs a numba pool of 2 threads or more")
+    out = []
+    for threads in (1, 2):
+        st = breaking_block(800)
+        numba.set_num_threads(threads)
+        try:
+            sim = Simulation(st, backend="numba", monitor_every=0)
+            sim.run(60)
+        finally:
+            numba.set_num_threads(1)
+        out.append((st.x.copy(), st.v.copy(), st.fs.copy(), sim.crack_log()))
+    for a, b in zip(out[0], out[1]):
+        assert np.array_equal(a, b)
