@@ -64,16 +64,16 @@ class HostBackend:
 class NumbaBackend(HostBackend):
     """numba on the CPU, parallel over elements.
 
-    A translation-only model with sorted, symmetric rows (every model geodem builds) takes
-    each contact once, from its owner's row (``owner_body`` in
-    ``geodem.backends.step_bodies``; 1.6x faster than walking both rows, docs/performance.md).
-    The partner's slot then keeps the contact's state code, but its shear spring is brought
-    up to date only when someone reads ``fs``: ``pull`` (the engine's rebuild, energy, sync,
-    checkpoint), ``settle`` (end of every ``run``), or a pass that walks every row (asleep
-    elements: ``set_active``; rotation or the dashpot on). The owner tables are rebuilt by
-    ``push`` when the rows may have changed (``push()`` or a push naming ``nbr``), as after
-    the engine's rebuilds; code that edits the rows of a running simulation must push them,
-    as it must for the GPU. ``once = False`` walks both rows of every contact instead.
+    A model with sorted, symmetric rows (every model geodem builds) takes each contact once,
+    from its owner's row (``owner_body`` in ``geodem.backends.step_bodies``; 1.3-1.6x faster
+    than walking both rows, docs/performance.md). The partner's slot then keeps the contact's
+    state code, but its shear spring (and rolling moment) is brought up to date only when
+    someone reads ``fs`` (``mr``): ``pull`` (the engine's rebuild, energy, sync, checkpoint),
+    ``settle`` (end of every ``run``), or a pass that walks every row (steps over the awake
+    elements only: ``set_active``). The owner tables are rebuilt by ``push`` when the rows may
+    have changed (``push()`` or a push naming ``nbr``), as after the engine's rebuilds; code
+    that edits the rows of a running simulation must push them, as it must for the GPU.
+    ``once = False`` walks both rows of every contact instead.
     """
 
     once = True  # each contact once when the model allows it (see the class doc)
@@ -111,18 +111,24 @@ class NumbaBackend(HostBackend):
             return
         # one buffer per thread of numba's pool (fixed per process): the results depend on
         # the number of buffers, so a run repeats bit for bit at the same NUMBA_NUM_THREADS
-        shape = (max(1, min(numba.config.NUMBA_NUM_THREADS, s.n)), s.n, 6)
+        shape = self._buf_shape()
         if self.buf is None or self.buf.shape != shape:
             self.buf = np.zeros(shape)
+
+    def _buf_shape(self):
+        s = self.s
+        width = 12 if (s.rotation or s.contact_damping) else 6  # step_bodies.owner_body
+        return (max(1, min(numba.config.NUMBA_NUM_THREADS, s.n)), s.n, width)
 
     def _sync_partners(self):
         if self.dirty:
             ostart, mirror = self.tables
-            self.k.mirror(self.s.nbr, ostart, mirror, self.s.cstate, self.s.fs)
+            mr = self._extra(("mr",))[0]
+            self.k.mirror(self.s.nbr, ostart, mirror, self.s.cstate, self.s.fs, mr)
             self.dirty = False
 
     def pull(self, names=None):
-        if self.dirty and (names is None or "fs" in names):
+        if self.dirty and (names is None or "fs" in names or "mr" in names):
             self._sync_partners()
 
     def push(self, names=None):
@@ -157,15 +163,17 @@ class NumbaBackend(HostBackend):
         g = s.gravity
         g2 = g[2] if s.dim == 3 else 0.0
         extra = self._extra(EXTRA_FORCE)
-        if s.nbr is not self.rows:  # rows replaced without a push (a wider width)
-            self._rows_changed()
-        if (self.once and self.idx is None and self.tables is not None and not s.rotation
-                and not s.contact_damping and self.buf.shape[1] == s.n):
+        if s.nbr is not self.rows or (self.tables is not None
+                                      and self.buf.shape[1:] != self._buf_shape()[1:]):
+            self._rows_changed()  # rows replaced (a wider width), or an option switched on
+        if self.once and self.idx is None and self.tables is not None:
             ostart, mirror = self.tables
-            self.k.force_owner(s.x, s.dx, s.props, s.nbr, ostart, mirror, s.cstate, s.fs,
-                               s.brate, self.buf, code_t, code_s, int(s.hertz))
+            w, wa, dth, rfree, inertia, fdash, mr = extra
+            self.k.force_owner(s.x, s.dx, s.props, s.m, s.nbr, ostart, mirror, s.cstate, s.fs,
+                               s.brate, self.buf, dt, code_t, code_s, int(s.hertz), dth, mr)
             self.k.finish(s.v, s.a, s.dx, s.free, s.fload, s.m, s.eta, self.buf, s.q_visc,
-                          s.q_break_n, s.q_break_s, s.q_fric, s.w_ext, g[0], g[1], g2, dt)
+                          s.q_break_n, s.q_break_s, s.q_fric, s.w_ext, g[0], g[1], g2, dt,
+                          *extra)
             self.dirty = True
             return
         self._sync_partners()

@@ -156,6 +156,58 @@ def move_body(i, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
     w_ext[i] += we
 
 
+def contact_point(i, j, bx, by, bz, rx, ry, rz, ri, rj, dth):
+    # ROT: the law sees the contact point's relative displacement: the rotations move it by
+    # -(R_i dth_i + R_j dth_j) x n (symmetric in i, j: j's side gets exactly the opposite)
+    inv = 1.0 / math.sqrt(bx * bx + by * by + bz * bz)
+    cnx = bx * inv
+    cny = by * inv
+    cnz = bz * inv
+    if DIM == 2:
+        cz = ri * dth[i, 0] + rj * dth[j, 0]
+        return rx + cz * cny, ry - cz * cnx, rz
+    cx = ri * dth[i, 0] + rj * dth[j, 0]
+    cy = ri * dth[i, 1] + rj * dth[j, 1]
+    cz = ri * dth[i, 2] + rj * dth[j, 2]
+    return rx - (cy * cnz - cz * cny), ry - (cz * cnx - cx * cnz), rz - (cx * cny - cy * cnx)
+
+
+def dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, rz, kni, props, m, dt):
+    # DAMP: normal dashpot c (v_j - v_i).n on a contact in compression, force on i along n
+    # [N]; an unbonded contact may resist separation but never pull
+    zeta = min(props[i, 7], props[j, 7])
+    fd = 0.0
+    if fn < 0.0 and zeta > 0.0 and dt > 0.0:
+        mj = m[j]
+        c = 2.0 * zeta * math.sqrt(m[i] * mj / (m[i] + mj) * series(kni, props[j, 1]))
+        # the step's mean relative velocity du/dt (the end-of-step velocities are not known
+        # yet): first-order accurate in dt
+        fd = c * (nx * rx + ny * ry + nz * rz) / dt
+        if csn != BONDED and fd > -fn:
+            fd = -fn
+    return fd
+
+
+def roll(i, j, k, fn, nx, ny, nz, ri, rj, ksi, props, dth, mr):
+    # ROT: the rolling resistance of entry k of row i; stores the new moment, returns it
+    # (moment on i [N m]; 2-D: about z only) and its heat
+    rs = series(ri, rj)
+    kr = series(ksi, props[j, 2]) * rs * rs
+    lim = min(props[i, 6], props[j, 6]) * rs * max(-fn, 0.0)
+    if DIM == 2:
+        (mx, my, mz, eqr) = rolling(nx, ny, nz, 0.0, 0.0, dth[i, 0] - dth[j, 0],
+                                    0.0, 0.0, mr[i, k, 0], kr, lim)
+        mr[i, k, 0] = mz
+        return mx, my, mz, eqr
+    (mx, my, mz, eqr) = rolling(nx, ny, nz, dth[i, 0] - dth[j, 0], dth[i, 1] - dth[j, 1],
+                                dth[i, 2] - dth[j, 2], mr[i, k, 0], mr[i, k, 1], mr[i, k, 2],
+                                kr, lim)
+    mr[i, k, 0] = mx
+    mr[i, k, 1] = my
+    mr[i, k, 2] = mz
+    return mx, my, mz, eqr
+
+
 def force_body(i, x, v, a, dx, free, fload, props, m, eta,
                nbr, cstate, fs, brate, q_visc, q_bn, q_bs, q_f, w_ext,
                g0, g1, g2, dt, code_t, code_s, hertz, ext):
@@ -182,26 +234,10 @@ def force_body(i, x, v, a, dx, free, fload, props, m, eta,
         if j < 0:
             break
         bx, by, ex, rx, ry, ez = branch(j, x, dx, xi0, xi1, xi2, di0, di1, di2)
+        rj = 0.0
         if ROT:
-            # the law sees the contact point's relative displacement: the rotations
-            # move it by -(R_i dth_i + R_j dth_j) x n (symmetric in i, j: j's row gets
-            # exactly the opposite)
-            inv = 1.0 / math.sqrt(bx * bx + by * by + ex * ex)
-            cnx = bx * inv
-            cny = by * inv
-            cnz = ex * inv
             rj = props[j, 0]
-            if DIM == 2:
-                cz = ri * dth[i, 0] + rj * dth[j, 0]
-                rx = rx + cz * cny
-                ry = ry - cz * cnx
-            else:
-                cx = ri * dth[i, 0] + rj * dth[j, 0]
-                cy = ri * dth[i, 1] + rj * dth[j, 1]
-                cz = ri * dth[i, 2] + rj * dth[j, 2]
-                rx = rx - (cy * cnz - cz * cny)
-                ry = ry - (cz * cnx - cx * cnz)
-                ez = ez - (cx * cny - cy * cnx)
+            rx, ry, ez = contact_point(i, j, bx, by, ex, rx, ry, ez, ri, rj, dth)
         cs = cstate[i, k]
         (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf) = row_contact(
             i, k, j, bx, by, ex, rx, ry, ez, props, pi, fs, brate, cs, code_t, code_s, hertz)
@@ -214,53 +250,32 @@ def force_body(i, x, v, a, dx, free, fload, props, m, eta,
         qs += eqs
         qf += eqf
         if DAMP:
-            # normal dashpot c (v_j - v_i).n on a contact in compression; an unbonded
-            # contact may resist separation but never pull
-            zeta = min(props[i, 7], props[j, 7])
-            if fn < 0.0 and zeta > 0.0 and dt > 0.0:
-                mj = m[j]
-                c = 2.0 * zeta * math.sqrt(m[i] * mj / (m[i] + mj) * series(kni, props[j, 1]))
-                # the step's mean relative velocity du/dt (the end-of-step velocities are
-                # not known yet): first-order accurate in dt
-                fd = c * (nx * rx + ny * ry + nz * ez) / dt
-                if csn != BONDED and fd > -fn:
-                    fd = -fn
-                d0 += fd * nx
-                d1 += fd * ny
-                d2 += fd * nz
+            fd = dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, ez, kni, props, m, dt)
+            d0 += fd * nx
+            d1 += fd * ny
+            d2 += fd * nz
         if ROT:
             # the shear force acts at the contact point R_i n; rolling resistance on top
-            rs = series(ri, rj)
-            kr = series(ksi, props[j, 2]) * rs * rs
-            lim = min(props[i, 6], props[j, 6]) * rs * max(-fn, 0.0)
-            if DIM == 2:  # about z only
-                u0 = 0.0
-                u1 = 0.0
-                u2 = dth[i, 0] - dth[j, 0]
-                m0 = 0.0
-                m1 = 0.0
-                m2 = mr[i, k, 0]
-            else:
-                u0 = dth[i, 0] - dth[j, 0]
-                u1 = dth[i, 1] - dth[j, 1]
-                u2 = dth[i, 2] - dth[j, 2]
-                m0 = mr[i, k, 0]
-                m1 = mr[i, k, 1]
-                m2 = mr[i, k, 2]
-            (mx, my, mz, eqr) = rolling(nx, ny, nz, u0, u1, u2, m0, m1, m2, kr, lim)
-            if DIM == 2:
-                mr[i, k, 0] = mz
-            else:
-                mr[i, k, 0] = mx
-                mr[i, k, 1] = my
-                mr[i, k, 2] = mz
+            mx, my, mz, eqr = roll(i, j, k, fn, nx, ny, nz, ri, rj, ksi, props, dth, mr)
+            if DIM == 3:
                 t0 += ri * (ny * sz - nz * sy) + mx
                 t1 += ri * (nz * sx - nx * sz) + my
             t2 += ri * (nx * sy - ny * sx) + mz
             qf += eqr
-    q_bn[i] += 0.5 * qn
-    q_bs[i] += 0.5 * qs
-    q_f[i] += 0.5 * qf
+    finish_dofs(i, f0, f1, f2, d0, d1, d2, t0, t1, t2, 0.5 * qn, 0.5 * qs, 0.5 * qf,
+                v, a, dx, free, fload, m, eta, q_visc, q_bn, q_bs, q_f, w_ext,
+                g0, g1, g2, dt, ext)
+
+
+def finish_dofs(i, f0, f1, f2, d0, d1, d2, t0, t1, t2, qn, qs, qf,
+                v, a, dx, free, fload, m, eta, q_visc, q_bn, q_bs, q_f, w_ext,
+                g0, g1, g2, dt, ext):
+    # element i's step after its contacts: contact force f, dashpot force d (DAMP), torque t
+    # (ROT), and its shares of the contacts' heats qn, qs, qf [J] to book
+    w, wa, dth, rfree, inertia, fdash, mr = ext
+    q_bn[i] += qn
+    q_bs[i] += qs
+    q_f[i] += qf
     mi = m[i]
     etai = eta[i]
     qv = 0.0
@@ -326,30 +341,42 @@ def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr):
 
 
 
-# ------------------------------------------------ each contact once (CPU, translation only)
+# ------------------------------------------------ each contact once (CPU)
 # The force pass above evaluates every contact twice, once from each row. These bodies
 # evaluate it once, from the row of its owner i < j (the tail of i's sorted row, from
-# ``ostart[i]``), and post the force on j into a buffer of the thread: ``buf`` (N, 6) holds
-# per element the force (columns 0-2) and the half heats q_f, q_bn, q_bs (3-5) that reach it.
-# ``finish_body`` then sums the threads' buffers, empties them and updates the velocities
-# exactly as ``force_body`` does. Only the owner's slot of a contact is stepped: its state
-# code is copied to the partner's slot (``mirror``) when it changes, its shear spring by
-# ``mirror_body`` when the partner slots are wanted (``geodem.backends.numba_backend``).
-def owner_body(i, x, dx, props, nbr, ostart, mirror, cstate, fs, brate, buf,
-               code_t, code_s, hertz):
+# ``ostart[i]``), and post what j receives into a buffer: ``buf`` (N, BUF) holds per element
+# the force (columns 0-2), the half heats q_f, q_bn, q_bs (3-5), and with the options the
+# dashpot force (6-8) and the torque (9-11). ``finish_body`` then sums the buffers, empties
+# them and ends the step exactly as ``force_body`` does (``finish_dofs``). Only the owner's
+# slot of a contact is stepped: its state code is copied to the partner's slot
+# (``mirror``) when it changes, its shear spring and rolling moment by ``mirror_body`` when
+# the partner slots are wanted (``geodem.backends.numba_backend``).
+def owner_body(i, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
+               dt, code_t, code_s, hertz, dth, mr):
     xi0, xi1, xi2, di0, di1, di2 = own_position(i, x, dx)
     pi = own_params(i, props)
+    ri, kni, ksi = pi[0], pi[1], pi[2]
     f0 = 0.0
     f1 = 0.0
     f2 = 0.0
     qn = 0.0
     qs = 0.0
     qf = 0.0
+    d0 = 0.0
+    d1 = 0.0
+    d2 = 0.0
+    t0 = 0.0
+    t1 = 0.0
+    t2 = 0.0
     for k in range(ostart[i], nbr.shape[1]):
         j = nbr[i, k]
         if j < 0:
             break
         bx, by, ex, rx, ry, ez = branch(j, x, dx, xi0, xi1, xi2, di0, di1, di2)
+        rj = 0.0
+        if ROT:
+            rj = props[j, 0]
+            rx, ry, ez = contact_point(i, j, bx, by, ex, rx, ry, ez, ri, rj, dth)
         cs = cstate[i, k]
         (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf) = row_contact(
             i, k, j, bx, by, ex, rx, ry, ez, props, pi, fs, brate, cs, code_t, code_s, hertz)
@@ -368,27 +395,65 @@ def owner_body(i, x, dx, props, nbr, ostart, mirror, cstate, fs, brate, buf,
             buf[j, 2] -= a2
         qn += eqn
         qs += eqs
-        qf += eqf
-        buf[j, 3] += 0.5 * eqf
         if eqn != 0.0 or eqs != 0.0:  # breaks are rare: skip the scatter otherwise
             buf[j, 4] += 0.5 * eqn
             buf[j, 5] += 0.5 * eqs
+        if DAMP:
+            fd = dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, ez, kni, props, m, dt)
+            if fd != 0.0:
+                d0 += fd * nx
+                d1 += fd * ny
+                buf[j, 6] -= fd * nx
+                buf[j, 7] -= fd * ny
+                if DIM == 3:
+                    d2 += fd * nz
+                    buf[j, 8] -= fd * nz
+        if ROT:
+            # j receives -Fs at -R_j n: torque R_j n x Fs, like i's with R_j; moment -M
+            mx, my, mz, eqr = roll(i, j, k, fn, nx, ny, nz, ri, rj, ksi, props, dth, mr)
+            cz = nx * sy - ny * sx
+            if DIM == 3:
+                cx = ny * sz - nz * sy
+                cy = nz * sx - nx * sz
+                t0 += ri * cx + mx
+                t1 += ri * cy + my
+                buf[j, 9] += rj * cx - mx
+                buf[j, 10] += rj * cy - my
+            t2 += ri * cz + mz
+            buf[j, 11] += rj * cz - mz
+            eqf += eqr
+        qf += eqf
+        buf[j, 3] += 0.5 * eqf
     buf[i, 0] += f0
     buf[i, 1] += f1
     buf[i, 2] += f2
     buf[i, 3] += 0.5 * qf
     buf[i, 4] += 0.5 * qn
     buf[i, 5] += 0.5 * qs
+    if DAMP:
+        buf[i, 6] += d0
+        buf[i, 7] += d1
+        buf[i, 8] += d2
+    if ROT:
+        buf[i, 9] += t0
+        buf[i, 10] += t1
+        buf[i, 11] += t2
 
 
 def finish_body(i, v, a, dx, free, fload, m, eta, buf, q_visc, q_bn, q_bs, q_f, w_ext,
-                g0, g1, g2, dt):
+                g0, g1, g2, dt, ext):
     f0 = 0.0
     f1 = 0.0
     f2 = 0.0
     qf = 0.0
     qn = 0.0
     qs = 0.0
+    d0 = 0.0
+    d1 = 0.0
+    d2 = 0.0
+    t0 = 0.0
+    t1 = 0.0
+    t2 = 0.0
     for t in range(buf.shape[0]):
         f0 += buf[t, i, 0]
         f1 += buf[t, i, 1]
@@ -396,19 +461,24 @@ def finish_body(i, v, a, dx, free, fload, m, eta, buf, q_visc, q_bn, q_bs, q_f, 
         qf += buf[t, i, 3]
         qn += buf[t, i, 4]
         qs += buf[t, i, 5]
-        for c in range(6):
+        if DAMP:
+            d0 += buf[t, i, 6]
+            d1 += buf[t, i, 7]
+            d2 += buf[t, i, 8]
+        if ROT:
+            t0 += buf[t, i, 9]
+            t1 += buf[t, i, 10]
+            t2 += buf[t, i, 11]
+        for c in range(buf.shape[2]):
             buf[t, i, c] = 0.0
-    q_bn[i] += qn
-    q_bs[i] += qs
-    q_f[i] += qf
-    qv, we = translate_dofs(i, f0, f1, f2, v, a, dx, free, fload, m[i], eta[i],
-                            g0, g1, g2, dt)
-    q_visc[i] += qv
-    w_ext[i] += we
+    finish_dofs(i, f0, f1, f2, d0, d1, d2, t0, t1, t2, qn, qs, qf,
+                v, a, dx, free, fload, m, eta, q_visc, q_bn, q_bs, q_f, w_ext,
+                g0, g1, g2, dt, ext)
 
 
-def mirror_body(i, nbr, ostart, mirror, cstate, fs):
+def mirror_body(i, nbr, ostart, mirror, cstate, fs, mr):
     # the partner's slot of each contact i owns gets its state: same code, opposite spring
+    # and rolling moment
     for k in range(ostart[i], nbr.shape[1]):
         j = nbr[i, k]
         if j < 0:
@@ -419,6 +489,9 @@ def mirror_body(i, nbr, ostart, mirror, cstate, fs):
             cstate[j, c] = cstate[i, k]
             for d in range(DIM):
                 fs[j, c, d] = -fs[i, k, d]
+            if ROT:
+                for d in range(NR):
+                    mr[j, c, d] = -mr[i, k, d]
 
 
 # ------------------------------------------------------------------ CPU loops (numba prange)
@@ -463,24 +536,24 @@ def cpu_force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
 # each contact once: one contiguous slab of elements per buffer, posting into that buffer.
 # Slab t always posts into buffer t, whichever thread runs it, so the sums (and the results)
 # depend on the number of buffers only, not on the threads' schedule.
-def cpu_force_owner(x, dx, props, nbr, ostart, mirror, cstate, fs, brate, buf,
-                    code_t, code_s, hertz):
+def cpu_force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
+                    dt, code_t, code_s, hertz, dth, mr):
     n = x.shape[0]
     nb = buf.shape[0]
     for t in prange(nb):
         b = buf[t]
         for i in range(t * n // nb, (t + 1) * n // nb):
-            owner_body(i, x, dx, props, nbr, ostart, mirror, cstate, fs, brate, b,
-                       code_t, code_s, hertz)
+            owner_body(i, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, b,
+                       dt, code_t, code_s, hertz, dth, mr)
 
 
 def cpu_finish(v, a, dx, free, fload, m, eta, buf, q_visc, q_bn, q_bs, q_f, w_ext,
-               g0, g1, g2, dt):
+               g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr):
     for i in prange(v.shape[0]):
         finish_body(i, v, a, dx, free, fload, m, eta, buf, q_visc, q_bn, q_bs, q_f, w_ext,
-                    g0, g1, g2, dt)
+                    g0, g1, g2, dt, (w, wa, dth, rfree, inertia, fdash, mr))
 
 
-def cpu_mirror(nbr, ostart, mirror, cstate, fs):
+def cpu_mirror(nbr, ostart, mirror, cstate, fs, mr):
     for i in prange(nbr.shape[0]):
-        mirror_body(i, nbr, ostart, mirror, cstate, fs)
+        mirror_body(i, nbr, ostart, mirror, cstate, fs, mr)

@@ -48,8 +48,18 @@ def breaking_block(n=1500):
     return st
 
 
-def test_each_contact_once_matches_both_rows_and_leaves_the_state_complete():
+VARIANTS = [(False, False), (True, False), (False, True), (True, True)]
+
+
+@pytest.mark.parametrize("rotation,damping", VARIANTS)
+def test_each_contact_once_matches_both_rows_and_leaves_the_state_complete(rotation, damping):
+    from geodem.core.state import enable_contact_damping, enable_rotation
+
     a = breaking_block()
+    if rotation:
+        enable_rotation(a, mu_r=0.2)
+    if damping:
+        enable_contact_damping(a, restitution=0.5)
     b = a.copy()
     sa = Simulation(a, backend="numba", monitor_every=0)
     sb = Simulation(b, backend="numba", monitor_every=0)
@@ -71,6 +81,13 @@ def test_each_contact_once_matches_both_rows_and_leaves_the_state_complete():
     kj = np.array([np.flatnonzero(a.nbr[q] == p)[0] for p, q in zip(i, j)])
     assert np.array_equal(a.fs[j, kj], -a.fs[i, k])
     assert np.array_equal(a.cstate[j, kj], a.cstate[i, k])
+    if rotation:
+        assert np.abs(a.w - b.w).max() < 1e-9 * np.abs(b.w).max()
+        assert np.abs(b.mr).max() > 0 and np.array_equal(a.mr[j, kj], -a.mr[i, k])
+        assert np.abs(a.mr - b.mr).max() < 1e-9 * np.abs(b.mr).max()
+    if damping:
+        assert np.abs(b.fdash).max() > 0
+        assert np.abs(a.fdash - b.fdash).max() < 1e-9 * np.abs(b.fdash).max()
     # energy books agree (heat of the breaks booked half on each side)
     ea, eb = sa.energies(), sb.energies()
     assert eb["heat_break_normal"] > 0 and eb["heat_break_shear"] > 0
