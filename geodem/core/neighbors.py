@@ -847,25 +847,32 @@ def pairs(state: State):
 
 @njit(cache=True, parallel=True)
 def _owner_tables(nbr, ostart, mirror):
-    # per row: first column with j > i, and each entry's column in its partner's row;
-    # returns the number of rows that are unsorted or lack a mirror entry
+    # per row: first column with j > i, and each owned entry's column in its partner's row.
+    # Returns (rows unsorted / self / without a mirror entry, owned - other entries): rows
+    # are symmetric iff both are 0 (each owned entry has its mirror, distinct entries have
+    # distinct mirrors, and the counts agree, so the mirrors are all the other entries)
     n, w = nbr.shape
     bad = 0
+    balance = 0
     for i in prange(n):
         ok = True
         start = w
         prev = -1
+        owned = 0
+        valid = 0
         for a in range(w):
             j = nbr[i, a]
             if j < 0:
-                if start == w:
-                    start = a
                 break
+            valid += 1
             if j <= prev or j == i:
                 ok = False
             prev = j
-            if j > i and start == w:
+            if j < i:
+                continue
+            if start == w:
                 start = a
+            owned += 1
             # the mirror entry: binary search in the partner's sorted row
             lo = 0
             hi = w
@@ -879,12 +886,12 @@ def _owner_tables(nbr, ostart, mirror):
             if lo < w and nbr[j, lo] == i:
                 mirror[i, a] = lo
             else:
-                mirror[i, a] = -1
                 ok = False
-        ostart[i] = start
+        ostart[i] = start if start < w else valid
+        balance += 2 * owned - valid
         if not ok:
             bad += 1
-    return bad
+    return bad, balance
 
 
 def owner_tables(nbr: np.ndarray):
@@ -893,15 +900,17 @@ def owner_tables(nbr: np.ndarray):
     Returns ``(ostart, mirror)`` or ``None``: ``ostart[i]`` (int32) is the first column of
     row ``i`` whose neighbour is above ``i`` (rows are sorted, so the owned entries are the
     tail of the valid part); ``mirror[i, k]`` (int8 for rows up to 127 wide, else int16)
-    is the column of ``i`` in the row of ``nbr[i, k]``. ``None`` when some row is not
-    sorted, holds a duplicate or itself, or an entry lacks its mirror: such rows are only
-    stepped by the kernels that walk every row entry.
+    is the column of ``i`` in the row of ``nbr[i, k]`` for the owned entries (-1 elsewhere).
+    ``None`` when some row is not sorted, holds a duplicate or itself, or the rows are not
+    symmetric: such rows are only stepped by the kernels that walk every row entry.
     """
     n, w = nbr.shape
     mirror = np.full((n, w), -1, np.int8 if w <= 127 else np.int16)
     ostart = np.zeros(n, np.int32)
-    if n and _owner_tables(nbr, ostart, mirror):
-        return None
+    if n:
+        bad, balance = _owner_tables(nbr, ostart, mirror)
+        if bad or balance:
+            return None
     return ostart, mirror
 
 

@@ -22,8 +22,8 @@ def test_owner_tables_by_hand():
     assert st.nbr[:, :2].tolist() == [[1, 2], [0, 3], [0, 3], [1, 2]]
     ostart, mirror = nb.owner_tables(st.nbr)
     assert ostart.tolist() == [0, 1, 1, 2]  # 3 owns nothing: its row ends at column 2
-    # 0 is column 0 of row 1 and of row 2; 1 and 2 are columns 0 and 1 of row 3
-    assert mirror[:, :2].tolist() == [[0, 0], [0, 0], [1, 1], [1, 1]]
+    # owned entries only: 0 is column 0 of rows 1 and 2; 1 and 2 are columns 0 and 1 of row 3
+    assert mirror[:, :2].tolist() == [[0, 0], [-1, 0], [-1, 1], [-1, -1]]
     assert mirror.dtype == np.int8
 
 
@@ -35,7 +35,10 @@ def test_owner_tables_refuse_unsorted_or_one_sided_rows_and_sort_rows_mends_orde
     assert nb.sort_rows(st) == 1
     assert st.nbr[1, :2].tolist() == [0, 3] and st.fs[1, 1].tolist() == [5.0, 6.0]
     assert nb.owner_tables(st.nbr) is not None
-    st.nbr[3, 1] = -1  # 2 lists 3, 3 no longer lists 2
+    st.nbr[3, 1] = -1  # 2 lists 3, 3 no longer lists 2: an owned entry without its mirror
+    assert nb.owner_tables(st.nbr) is None
+    st.nbr[3, 1] = 2
+    st.nbr[2, 1] = -1  # 3 lists 2, 2 no longer lists 3: every owned entry has its mirror
     assert nb.owner_tables(st.nbr) is None
 
 
