@@ -48,7 +48,7 @@ import time
 import numpy as np
 from numba import njit
 
-__all__ = ["bond_network", "isotropic_packing", "jam", "stress_free"]
+__all__ = ["bond_network", "isotropic_packing", "jam", "stress_free", "stress_free_network"]
 
 PHI_START = 0.3
 PHI_BULK = 0.635  # random close packing of the default size spread (measured: 0.639)
@@ -302,6 +302,29 @@ def bond_network(x, r, lo, hi, gap, min_bonds=None, max_gap=0.25):
     return pi[bond], pj[bond], faces, added
 
 
+def stress_free_network(xj, rj, lo, hi, gap=DEFAULT_GAP, prestress=DEFAULT_PRESTRESS):
+    """Steps 3 and 4 of the module docstring on a jammed packing (reduced units): the bond
+    network within ``gap`` (:func:`bond_network`), then positions and radii made stress-free
+    (:func:`stress_free`); pairs or faces the adjustment brings into contact are bonded too and
+    the adjustment redone (up to 5 times). Returns ``(x, r, i, j, faces, added, residual)``."""
+    i, j, faces, added = bond_network(xj, rj, lo, hi, gap)
+    for _ in range(5):
+        xs, rs, res = stress_free(xj, rj, i, j, faces, lo, hi, prestress=prestress)
+        # pairs or faces the adjustment brought into contact: bond them too and redo
+        pi, pj = _pairs(xs, rs, 0.0)
+        new = set(zip(pi.tolist(), pj.tolist())) - set(zip(i.tolist(), j.tolist()))
+        fnew = {tuple(f) for f in _face_contacts(xs, rs, lo, hi, 0.0).tolist()} - \
+            {tuple(f) for f in faces.tolist()}
+        if not new and not fnew:
+            break
+        if new:
+            add = np.array(sorted(new), dtype=np.int64)
+            i, j = np.concatenate([i, add[:, 0]]), np.concatenate([j, add[:, 1]])
+        if fnew:
+            faces = np.concatenate([faces, np.array(sorted(fnew), dtype=np.int64)])
+    return xs, rs, i, j, faces, added, res
+
+
 def stress_free(x, r, i, j, faces, lo, hi, *, prestress=DEFAULT_PRESTRESS, iterations=6,
                 tol=1e-10):
     """Adjust positions and radii (minimum-norm Gauss-Newton) so that every pair ``(i, j)``
@@ -376,21 +399,7 @@ def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=PHI_
     r0 = packing.radii(n, d_mean, distri_rate, rng) / d_mean
     lo, hi = np.zeros(dim), size / d_mean
     xj, rj, info = jam(r0, lo, hi, overlap=overlap, seed=rng.integers(2 ** 31))
-    i, j, faces, added = bond_network(xj, rj, lo, hi, gap)
-    for _ in range(5):
-        xs, rs, res = stress_free(xj, rj, i, j, faces, lo, hi, prestress=prestress)
-        # pairs or faces the adjustment brought into contact: bond them too and redo
-        pi, pj = _pairs(xs, rs, 0.0)
-        new = set(zip(pi.tolist(), pj.tolist())) - set(zip(i.tolist(), j.tolist()))
-        fnew = {tuple(f) for f in _face_contacts(xs, rs, lo, hi, 0.0).tolist()} - \
-            {tuple(f) for f in faces.tolist()}
-        if not new and not fnew:
-            break
-        if new:
-            add = np.array(sorted(new), dtype=np.int64)
-            i, j = np.concatenate([i, add[:, 0]]), np.concatenate([j, add[:, 1]])
-        if fnew:
-            faces = np.concatenate([faces, np.array(sorted(fnew), dtype=np.int64)])
+    xs, rs, i, j, faces, added, res = stress_free_network(xj, rj, lo, hi, gap, prestress)
     vol = packing.element_volume(rs, dim).sum() / np.prod(hi)
     rep = {"n": int(n), "d_mean": 2.0 * float(rs.mean()) * d_mean, "scale": info["scale"],
            "jam_overlap": info["mean_overlap"], "jam_cycles": info["cycles"],
