@@ -96,6 +96,9 @@ CRACK_LINK = 2.5  # x d_mean: cracks closer than this belong to one chain (an ar
 
 
 # ============================================================================ model
+JAM_RETRIES = (1.0, 2.0, 4.0)  # relaxed graded plate: jamming overlaps tried, x RELAX_OVERLAP x xb
+
+
 class PlateCoarsenSpec(CoarsenSpec):
     """Graded plate (docs/graded.md, docs/hydraulic_fracturing.md): fine elements (d_mean) in
     a band around the borehole, where the fracture starts, coarser ones (up to factor x
@@ -107,6 +110,12 @@ class PlateCoarsenSpec(CoarsenSpec):
     transition: float = F(0.02, unit="m", ge=0, le=1e4,
                           description="Distance beyond the fine band over which the diameter "
                                       "grows linearly from d_mean to factor x d_mean (0: a step)")
+    bonds: Literal["relaxed", "stress_free"] = F(
+        "relaxed", description="relaxed: jammed to 0.1 xb and bonded within 0.1 xb, as the "
+                               "uniform plate and the calibration specimens (make_specimen); "
+                               "stress_free: jammed to 1e-4 d and made stress-free (3-4x "
+                               "faster to build at 16-32 d_mean holes, bonds unstrained; "
+                               "breaks ~10 % higher, docs/hydraulic_fracturing.md)")
 
 
 @register_model("hydrofrac_plate")
@@ -242,18 +251,22 @@ class HydrofracPlate(ModelBase):
         would make the coarse rings ``d_nom / d_mean`` times stiffer and stronger per unit
         length, and the stiff ring would shield the borehole wall: :func:`wall_hoop_stress`;
         docs/hydraulic_fracturing.md), and balanced; the borehole cut and the loose elements
-        pruned as in :func:`geodem.workflow.brazilian.plate_with_hole`. The packing is jammed
-        to the default mean overlap (1e-4 d) and made stress-free as the 3-D specimens are
-        (:func:`geodem.build.isotropic.stress_free_network`: touching pairs within 0.01 d
-        bonded, positions and radii adjusted until every bonded pair touches), so the bonds
-        start unstrained. (Until session 7 the packing was jammed to 0.1 xb, 4.4e-6 d for the
-        sandstone, so that its release would not break the bonds; the jamming then took 87 %
-        of the build: 332 of 382 s at a 16 d hole.)
+        pruned as in :func:`geodem.workflow.brazilian.plate_with_hole`. ``bonds: relaxed``
+        (default): the packing is jammed to a mean contact overlap of ``RELAX_OVERLAP`` (0.1)
+        x xb and pairs within ``CEMENT_GAP`` (0.1) x xb are bonded, as ``make_specimen``
+        relaxes and bonds the uniform plate's and the calibration specimens' packings (a
+        bonded packing released from overlaps larger than xb springs apart and breaks its
+        bonds: at the jamming default of 1e-4 d, 2.5 xb of the sandstone, 40 % broke); when
+        the jamming finds no state so near its jamming point it is tried at 2 and 4 times
+        that. ``bonds: stress_free``: jammed to the default 1e-4 d and made stress-free as
+        the 3-D specimens are (:func:`geodem.build.isotropic.stress_free_network`), bonds
+        unstrained; the jamming near 0.1 xb, 87 % of the relaxed build (332 of 382 s at a
+        16 d hole), is skipped.
         Returns ``(state, removed, specimen_material, report, centre, graded_info)``."""
         from geodem.build.graded import graded_packing
         from geodem.build.isotropic import stress_free_network
         from geodem.build.shapes import subset_state
-        from geodem.build.specimen import cement, specimen_params
+        from geodem.build.specimen import CEMENT_GAP, RELAX_OVERLAP, cement, specimen_params
         from geodem.core.engine import Simulation
         from geodem.core.neighbors import spatial_sort
         from geodem.core.state import new_state
@@ -266,20 +279,36 @@ class HydrofracPlate(ModelBase):
         mat = sm.material
         params = specimen_params(mat, sm.element, d)
         lo, hi = np.zeros(2), np.full(2, self.size)
-        try:
-            x, r, dn, prep = graded_packing(lo, hi, self.local_d, d, self.distri_rate,
-                                            seed=seed)
-        except (RuntimeError, ValueError) as exc:
-            raise BuildError(("coarsen",), str(exc)) from None
-        # stress-free bonds, as the 3-D specimens: touching pairs within a gap, positions and
-        # radii adjusted until each bonded pair touches (lengths in d)
-        xs, rs, bi, _, _, added, res = stress_free_network(x / d, r / d, lo / d, hi / d)
-        prep.update({"bonds": int(bi.size), "rattler_bonds": int(added),
-                     "max_radius_change": float(np.abs(rs * d / r - 1.0).max()),
-                     "stress_free_residual": float(res)})
-        x, r = xs * d, rs * d
+        if c.bonds == "stress_free":
+            try:
+                x, r, dn, prep = graded_packing(lo, hi, self.local_d, d, self.distri_rate,
+                                                seed=seed)
+            except (RuntimeError, ValueError) as exc:
+                raise BuildError(("coarsen",), str(exc)) from None
+            # stress-free bonds, as the 3-D specimens: touching pairs within a gap, positions
+            # and radii adjusted until each bonded pair touches (lengths in d)
+            xs, rs, bi, _, _, added, res = stress_free_network(x / d, r / d, lo / d, hi / d)
+            prep.update({"bonds": int(bi.size), "rattler_bonds": int(added),
+                         "max_radius_change": float(np.abs(rs * d / r - 1.0).max()),
+                         "stress_free_residual": float(res)})
+            x, r = xs * d, rs * d
+            gap = 0.0
+        else:
+            for k, mult in enumerate(JAM_RETRIES):
+                try:
+                    x, r, dn, prep = graded_packing(
+                        lo, hi, self.local_d, d, self.distri_rate, seed=seed,
+                        overlap=mult * RELAX_OVERLAP * params["xb"] / d)
+                    break
+                except RuntimeError as exc:  # no jammed state near so small an overlap
+                    if k == len(JAM_RETRIES) - 1:
+                        raise BuildError(("coarsen",), str(exc)) from None
+                except ValueError as exc:
+                    raise BuildError(("coarsen",), str(exc)) from None
+            prep["overlap_over_xb"] = mult * RELAX_OVERLAP
+            gap = CEMENT_GAP * params["xb"]
         st = new_state(x, r, 1.0, width=16)
-        rep = cement(st, 0.0, params, d_ref=d, rho=mat["rho"], n_across=self.n_across())
+        rep = cement(st, gap, params, d_ref=d, rho=mat["rho"], n_across=self.n_across())
         # a plate of one thickness (d_mean): cement made each element a disc as thick as wide
         thick = d * prep["scale"] / dn  # 1 for the fine elements (their d_nom is d x scale)
         if np.any(thick != 1.0):
