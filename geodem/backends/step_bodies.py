@@ -18,6 +18,12 @@ The step is two passes over elements (velocity Verlet, PHYSICS.md section 3):
    ``a' = (F - eta v')/m``. Fixed and kinematic DOFs keep their velocity and store
    ``a = F_contact/m`` (the reaction).
 
+   On the CPU the force pass is usually split in two instead (``owner_body`` +
+   ``finish_body``, section "each contact once" below): each contact is evaluated once, by the
+   lower index, which posts the partner's share into a per-slab buffer; ``finish_body`` then
+   ends every element's step exactly as ``force_body`` does (``finish_dofs``). The GPU and
+   steps over a list of awake elements keep ``force_body``.
+
 ``ROT`` (compile-time): the elements also turn (``geodem.core.state.enable_rotation``); the
 rotation arrays ``w, wa, dth, rfree, inertia, mr`` are then read and written, otherwise they
 are placeholders the compiled code never touches. ``DAMP`` (compile-time): contacts in
