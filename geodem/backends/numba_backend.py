@@ -94,6 +94,8 @@ class NumbaBackend(HostBackend):
         if (s.rotation, s.contact_damping) != self.k_key:  # the variant (changes after attach)
             self.k_key = (s.rotation, s.contact_damping)
             self.k = make_kernels(s.dim, "cpu", *self.k_key)
+            if self.buf is not None and self.buf.shape != self._buf_shape():
+                self.buf = np.zeros(self._buf_shape())  # an option's columns
         ph = self._ph
         return tuple(ph[k] if getattr(s, k) is None else getattr(s, k) for k in names)
 
@@ -163,9 +165,8 @@ class NumbaBackend(HostBackend):
         g = s.gravity
         g2 = g[2] if s.dim == 3 else 0.0
         extra = self._extra(EXTRA_FORCE)
-        if s.nbr is not self.rows or (self.tables is not None
-                                      and self.buf.shape[1:] != self._buf_shape()[1:]):
-            self._rows_changed()  # rows replaced (a wider width), or an option switched on
+        if s.nbr is not self.rows:
+            self._rows_changed()  # rows replaced without a push (a wider width)
         if self.once and self.idx is None and self.tables is not None:
             ostart, mirror = self.tables
             w, wa, dth, rfree, inertia, fdash, mr = extra

@@ -178,6 +178,20 @@ def contact_point(i, j, bx, by, bz, rx, ry, rz, ri, rj, dth):
     return rx - (cy * cnz - cz * cny), ry - (cz * cnx - cx * cnz), rz - (cx * cny - cy * cnx)
 
 
+def entry_contact(i, k, j, x, dx, xi0, xi1, xi2, di0, di1, di2, props, pi, fs, brate, cs,
+                  dth, code_t, code_s, hertz):
+    # entry k of row i (partner j) through the law: the law's tuple (the spring stored), then
+    # the relative displacement the law saw (the contact point's with ROT) and R_j (ROT)
+    bx, by, bz, rx, ry, rz = branch(j, x, dx, xi0, xi1, xi2, di0, di1, di2)
+    rj = 0.0
+    if ROT:
+        rj = props[j, 0]
+        rx, ry, rz = contact_point(i, j, bx, by, bz, rx, ry, rz, pi[0], rj, dth)
+    (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf) = row_contact(
+        i, k, j, bx, by, bz, rx, ry, rz, props, pi, fs, brate, cs, code_t, code_s, hertz)
+    return fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf, rx, ry, rz, rj
+
+
 def dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, rz, kni, props, m, dt):
     # DAMP: normal dashpot c (v_j - v_i).n on a contact in compression, force on i along n
     # [N]; an unbonded contact may resist separation but never pull
@@ -239,14 +253,10 @@ def force_body(i, x, v, a, dx, free, fload, props, m, eta,
         j = nbr[i, k]
         if j < 0:
             break
-        bx, by, ex, rx, ry, ez = branch(j, x, dx, xi0, xi1, xi2, di0, di1, di2)
-        rj = 0.0
-        if ROT:
-            rj = props[j, 0]
-            rx, ry, ez = contact_point(i, j, bx, by, ex, rx, ry, ez, ri, rj, dth)
         cs = cstate[i, k]
-        (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf) = row_contact(
-            i, k, j, bx, by, ex, rx, ry, ez, props, pi, fs, brate, cs, code_t, code_s, hertz)
+        (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf, rx, ry, ez, rj) = entry_contact(
+            i, k, j, x, dx, xi0, xi1, xi2, di0, di1, di2, props, pi, fs, brate, cs, dth,
+            code_t, code_s, hertz)
         if csn != cs:
             cstate[i, k] = csn
         f0 += fn * nx + sx
@@ -378,14 +388,10 @@ def owner_body(i, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
         j = nbr[i, k]
         if j < 0:
             break
-        bx, by, ex, rx, ry, ez = branch(j, x, dx, xi0, xi1, xi2, di0, di1, di2)
-        rj = 0.0
-        if ROT:
-            rj = props[j, 0]
-            rx, ry, ez = contact_point(i, j, bx, by, ex, rx, ry, ez, ri, rj, dth)
         cs = cstate[i, k]
-        (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf) = row_contact(
-            i, k, j, bx, by, ex, rx, ry, ez, props, pi, fs, brate, cs, code_t, code_s, hertz)
+        (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf, rx, ry, ez, rj) = entry_contact(
+            i, k, j, x, dx, xi0, xi1, xi2, di0, di1, di2, props, pi, fs, brate, cs, dth,
+            code_t, code_s, hertz)
         if csn != cs:
             cstate[i, k] = csn
             cstate[j, mirror[i, k]] = csn

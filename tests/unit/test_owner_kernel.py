@@ -132,3 +132,19 @@ def test_results_do_not_depend_on_how_many_threads_run_the_buffers():
         out.append((st.x.copy(), st.v.copy(), st.fs.copy(), sim.crack_log()))
     for a, b in zip(out[0], out[1]):
         assert np.array_equal(a, b)
+
+
+def test_an_option_switched_on_after_attach_gets_its_buffer_columns():
+    from geodem.core.state import enable_rotation
+
+    a = breaking_block(600)
+    b = a.copy()
+    sims = [Simulation(st, backend="numba", monitor_every=0) for st in (a, b)]
+    sims[1].backend.once = False
+    for sim in sims:
+        sim.run(5)
+        enable_rotation(sim.state, mu_r=0.2)  # no push: the backend notices the new variant
+        sim.run(40)
+    assert sims[0].backend.buf.shape[2] == 12
+    assert np.abs(b.w).max() > 0 and np.abs(a.w - b.w).max() < 1e-9 * np.abs(b.w).max()
+    assert np.abs(a.v - b.v).max() < 1e-9 * np.abs(b.v).max()
