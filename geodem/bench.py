@@ -36,8 +36,10 @@ BYTES_PER_ELEMENT_ESTIMATE = STATE_BYTES_PER_ELEMENT + 1000
 TARGET_SECONDS = 3.0
 #: wall time of the extra timing of the bare step kernels [s] (see ``_time_kernels``)
 KERNEL_SECONDS = 1.0
-#: the timed part runs at least this many steps (unless ``steps`` is given)
-MIN_STEPS = 3
+#: the timed part runs at least this many steps (unless ``steps`` is given): the bench specimen
+#: rebuilds its rows about once per 100 steps, so a shorter window would count a whole rebuild
+#: or none (at 1e6 elements one rebuild costs ~5 steps)
+MIN_STEPS = 100
 #: rock-like element parameters of the bench specimen (SI units; d = element spacing)
 SPACING = 1.0e-3
 SKIN = 0.3  # neighbour skin of the bench specimen, in lattice spacings (build_specimen)

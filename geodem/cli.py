@@ -354,7 +354,8 @@ def bench(
         help="Comma-separated backends (auto, numba, numpy, cupy). \\[default: every usable one; "
              "numpy only up to --numpy-max elements]")] = None,
     steps: Annotated[Optional[int], typer.Option(
-        "--steps", min=1, help="Timed steps per run. \\[default: about 3 s worth]")] = None,
+        "--steps", min=1,
+        help="Timed steps per run. \\[default: about 3 s worth, at least 100]")] = None,
     dim: Annotated[int, typer.Option("--dim", min=2, max=3, help="Dimension (2 or 3).")] = 3,
     numpy_max: Annotated[int, typer.Option(
         "--numpy-max", min=1, help="Largest size the slow NumPy reference is run at.")] = 100_000,

@@ -37,6 +37,7 @@ import math
 
 from numba import prange
 
+from geodem.backends.prefetch import prefetch_row
 from geodem.core.law import BONDED, contact, contact_energy, rolling, series
 
 DIM = 3  # placeholders: bound per compiled variant
@@ -506,6 +507,20 @@ def mirror_body(i, nbr, ostart, mirror, cstate, fs, mr):
                     mr[j, c, d] = -mr[i, k, d]
 
 
+def prefetch_partners(i, x, dx, props, nbr, ostart, buf):
+    # ask for the cache lines of the partners of owner i a few elements ahead: in a model
+    # larger than the caches the partners' rows are the pass's scattered reads, and waiting
+    # for them cost ~20 % of the pass at 1e6 elements (docs/performance.md); a hint only
+    for k in range(ostart[i], nbr.shape[1]):
+        j = nbr[i, k]
+        if j < 0:
+            break
+        prefetch_row(x, j)
+        prefetch_row(dx, j)
+        prefetch_row(props, j)
+        prefetch_row(buf, j)
+
+
 # ------------------------------------------------------------------ CPU loops (numba prange)
 def cpu_move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
              w, wa, dth, rfree, inertia, fdash):
@@ -548,13 +563,17 @@ def cpu_force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
 # each contact once: one contiguous slab of elements per buffer, posting into that buffer.
 # Slab t always posts into buffer t, whichever thread runs it, so the sums (and the results)
 # depend on the number of buffers only, not on the threads' schedule.
+# ``ahead`` > 0: prefetch the partners of element i + ahead (prefetch_partners); 0: none.
 def cpu_force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
-                    dt, code_t, code_s, hertz, dth, mr):
+                    dt, code_t, code_s, hertz, dth, mr, ahead):
     n = x.shape[0]
     nb = buf.shape[0]
     for t in prange(nb):
         b = buf[t]
-        for i in range(t * n // nb, (t + 1) * n // nb):
+        hi = (t + 1) * n // nb
+        for i in range(t * n // nb, hi):
+            if ahead > 0 and i + ahead < hi:
+                prefetch_partners(i + ahead, x, dx, props, nbr, ostart, b)
             owner_body(i, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, b,
                        dt, code_t, code_s, hertz, dth, mr)
 

@@ -148,3 +148,26 @@ def test_an_option_switched_on_after_attach_gets_its_buffer_columns():
     assert sims[0].backend.buf.shape[2] == 12
     assert np.abs(b.w).max() > 0 and np.abs(a.w - b.w).max() < 1e-9 * np.abs(b.w).max()
     assert np.abs(a.v - b.v).max() < 1e-9 * np.abs(b.v).max()
+
+
+def test_prefetching_changes_no_result_and_is_on_for_large_models_only():
+    from geodem.backends.numba_backend import NumbaBackend
+
+    out = []
+    for ahead in (0, 2, 5):
+        st = breaking_block(800)
+        sim = Simulation(st, backend="numba", monitor_every=0)
+        assert sim.backend.ahead == 0  # 800 elements: below PREFETCH_MIN
+        sim.backend.ahead = ahead
+        sim.run(40)
+        out.append((st.x.copy(), st.v.copy(), st.fs.copy(), sim.crack_log()))
+    assert len(out[0][3]) > 0  # bonds broke, so the state codes were exercised too
+    for other in out[1:]:
+        for a, b in zip(out[0], other):
+            assert np.array_equal(a, b)
+    side = int(np.ceil(np.sqrt(NumbaBackend.PREFETCH_MIN)))
+    grid = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)
+    big = new_state(grid.astype(float), 0.5, 1.0, kn=1.0, ks=0.5)  # touching discs, a grid
+    nb.build_rows(big, skin=0.1)
+    assert Simulation(big, backend="numba", monitor_every=0).backend.ahead \
+        == NumbaBackend.PREFETCH_AHEAD
