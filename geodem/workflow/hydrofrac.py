@@ -621,11 +621,12 @@ class HydraulicFracturing(StepBase):
                                           "the others (stress boundary)")
     p0: float = F(0.0, unit="Pa", ge=0, description="Initial pore pressure (also the drained "
                                                     "boundary pressure)")
-    pressure_rate: float = F(2.0e9, unit="Pa/s", gt=0,
-                             description="Ramp rate of the borehole pressure")
+    pressure_rate: float = F(5.0e8, unit="Pa/s", gt=0,
+                             description="Ramp rate of the borehole pressure (faster ramps "
+                                         "branch into more arms)")
     p_max: float = F(1.0e8, unit="Pa", gt=0, description="Largest borehole pressure (the "
                                                          "paper's 100 MPa)")
-    duration: float = F(5.0e-3, unit="s", gt=0, description="Injection time")
+    duration: float = F(2.0e-2, unit="s", gt=0, description="Injection time")
     stop_radius: Optional[float] = F(0.85, gt=0, le=1,
                                      description="Stop when a borehole-connected crack reaches "
                                                  "this fraction of size/2 from the centre "

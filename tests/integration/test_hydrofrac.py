@@ -1,21 +1,22 @@
 """Hydraulic fracturing (geodem/workflow/hydrofrac.py, workflows/hydraulic_fracturing*.yaml).
 
 Default suite: the analysis helpers on hand-made input, and a small plate (0.1 m, ~400
-elements) run end to end (summary keys, mass balance, pictures). Slow (``-m slow``): the two
-workflows at their default size against the targets of VALIDATION.md:
+elements, the fast 2e9 Pa/s ramp) run end to end (summary keys, mass balance, pictures). Slow
+(``-m slow``): the two workflows at their default size (ramp 5e8 Pa/s) against the targets of
+VALIDATION.md (measured values: docs/hydraulic_fracturing.md):
 
-* isotropic (four fixed boundaries): 2-4 crack arms (measured: 4 arms at 107, 217, 274, 354
-  deg); breakdown within 30 % of Hubbert-Willis ``P_b = T`` with T the calibrated
-  (Brazilian) tensile strength of materials/sandstone.yaml, 5.83 MPa: NOT met, measured
-  2.25 MPa (0.39 x), kept as a strict xfail; with T from direct tension of a strip of the
-  plate's own packing (``tensile_strength_from: direct_tension``, 0.65 MPa) it is 3.5 x the
-  other way, also a strict xfail (docs/hydraulic_fracturing.md: the breakdown falls with
-  hole size / d_mean; graded plates (tests/integration/test_hydrofrac_graded.py) with holes of
-  16, 24 and 32 d_mean give 1.45-1.92 x, 1.60 x and 1.34-1.38 x the direct-tension strength);
+* isotropic (four fixed boundaries): 2-4 crack arms for each of seeds 0-2 (measured 4, 3, 3
+  with numba's 2-thread pool); breakdown within 30 % of Hubbert-Willis ``P_b = T`` with T the
+  calibrated (Brazilian) tensile strength of materials/sandstone.yaml (7.16 MPa): NOT met,
+  measured 1.90 MPa (0.27 x), kept as a strict xfail; with T from direct tension of a strip of
+  the plate's own packing (``tensile_strength_from: direct_tension``, ~0.8 MPa) it is off the
+  other way, also a strict xfail (the breakdown falls with hole size / d_mean; graded plates
+  (tests/integration/test_hydrofrac_graded.py) with holes of 16, 24 and 32 d_mean give
+  1.45-1.92 x, 1.60 x and 1.34-1.38 x the direct-tension strength);
 * confined (sigma_H = 6 MPa along x, sigma_h = 3 MPa): the dominant arm within 15 deg of
-  sigma_H (measured 7.9 deg), breakdown within 30 % of ``3 sigma_h - sigma_H + T`` = 8.83 MPa
-  (measured 10.23 MPa, +16 %);
-* fluid mass balance < 1e-6 in both (measured ~1e-16).
+  sigma_H (measured 9.8 deg), breakdown within 30 % of ``3 sigma_h - sigma_H + T`` = 10.16 MPa
+  (measured 9.68 MPa, -5 %);
+* fluid mass balance < 1e-6 in all (measured ~1e-16).
 """
 import json
 import math
@@ -126,7 +127,9 @@ def test_boundary_tractions_carry_the_far_field_stress(angle):
 
 
 # ------------------------------------------------------------------ a small plate end to end
-SMALL = ["model.size=0.1", "model.hole_radius=0.0075", "steps.injection.duration=0.003"]
+# the small plate keeps the fast ramp of sessions 1-7 (2e9 Pa/s): a few seconds in CI
+SMALL = ["model.size=0.1", "model.hole_radius=0.0075", "steps.injection.duration=0.003",
+         "steps.injection.pressure_rate=2.0e9"]
 
 
 @pytest.fixture(scope="module")
@@ -183,18 +186,34 @@ def confined(tmp_path_factory):
     return s
 
 
-@pytest.mark.slow
-@pytest.mark.validation
-def test_isotropic_plate_grows_two_to_four_arms(isotropic):
-    assert 2 <= isotropic["crack_branches"] <= 4
-    assert isotropic["fluid_mass_balance_rel_error"] < 1e-6
+@pytest.fixture(scope="module")
+def isotropic_seeds(isotropic, tmp_path_factory):
+    runs = [isotropic]
+    for seed in (1, 2):
+        out = tmp_path_factory.mktemp(f"hf_seed{seed}") / "run"
+        code, s = run_workflow(HF, out, sets=[f"model.seed={seed}", "steps.injection.gif=false"],
+                               echo=False, progress=False)
+        assert code == 0 and s["status"] == "ok", s.get("error")
+        runs.append(s)
+    return runs
 
 
 @pytest.mark.slow
 @pytest.mark.validation
-@pytest.mark.xfail(strict=True, reason="measured breakdown 2.25 MPa = 0.39 x Hubbert-Willis "
-                                       "T = 5.83 MPa (calibrated nominal Brazilian Tu); the "
-                                       "plate's own direct-tension T is 0.65 MPa (3.5 x the "
+def test_isotropic_plate_grows_two_to_four_arms(isotropic_seeds):
+    """Three packings (seeds 0-2). Measured at the default ramp, 5e8 Pa/s: 4, 3, 3 arms with
+    numba's 2-thread pool (4, 4, 3 with one thread; seeds 3, 4: 3, 4). The earlier 2e9 Pa/s
+    ramp gave 4, 5, 5 (one thread): faster ramps branch more (docs/hydraulic_fracturing.md)."""
+    for seed, s in enumerate(isotropic_seeds):
+        assert 2 <= s["crack_branches"] <= 4, (seed, s["crack_angles_deg"])
+        assert s["fluid_mass_balance_rel_error"] < 1e-6
+
+
+@pytest.mark.slow
+@pytest.mark.validation
+@pytest.mark.xfail(strict=True, reason="measured breakdown 1.90 MPa = 0.27 x Hubbert-Willis "
+                                       "T = 7.16 MPa (calibrated nominal Brazilian Tu); the "
+                                       "plate's own direct-tension T is ~0.8 MPa (2.3 x the "
                                        "other way): no honest T meets 30 %, see "
                                        "docs/hydraulic_fracturing.md")
 def test_isotropic_breakdown_within_30_percent_of_hubbert_willis(isotropic):
@@ -232,8 +251,8 @@ def test_direct_tension_strength_of_the_plate_packing(isotropic_direct):
 
 @pytest.mark.slow
 @pytest.mark.validation
-@pytest.mark.xfail(strict=True, reason="measured breakdown 2.25 MPa = 3.5 x Hubbert-Willis with "
-                                       "T = 0.65 MPa (direct tension of the plate's packing); "
+@pytest.mark.xfail(strict=True, reason="measured breakdown 1.90 MPa = 2.3 x Hubbert-Willis with "
+                                       "T ~0.8 MPa (direct tension of the plate's packing); "
                                        "larger holes come closer but not within 30 %: graded "
                                        "plates give 1.45-1.92 x at 16 d_mean (3 seeds), "
                                        "1.60 x at 24 and 1.34-1.38 x at 32 d_mean: see "
