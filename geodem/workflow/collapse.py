@@ -199,8 +199,8 @@ class GranularColumn(ModelBase):
                                 description="Rolling-resistance coefficient mu_r of every "
                                             "element with rotation: a contact resists rolling "
                                             "up to mu_r R* |Fn| (R* = R_i R_j / (R_i + R_j))")
-    packings: Int = F(1, ge=1, le=8,
-                      description="Packings per aspect ratio (1 to 8): every ratio is run with "
+    packings: Int = F(1, ge=1, le=16,
+                      description="Packings per aspect ratio (1 to 16): every ratio is run with "
                                   "this many columns packed with the seeds seed, seed + 1, ..., "
                                   "each in its own channel; the summary's runouts and "
                                   "runout_rel_error are those of the mean normalised runout "
