@@ -285,11 +285,8 @@ class TbmRock(ModelBase):
                         self.layer_thickness[1], self.first, self.layer_offset)
 
     def build(self, cfg):
-        from geodem.build import packing
-        from geodem.build.shapes import subset_state
         from geodem.build.specimen import make_specimen
         from geodem.build.walls import append_elements
-        from geodem.core.law import BONDED
         from geodem.core import groups as grp
         from geodem.core.engine import Simulation
         from geodem.core.neighbors import build_rows
@@ -305,24 +302,11 @@ class TbmRock(ModelBase):
                 for k, sm in sms.items()}
         stiff = max(kn_d, key=kn_d.get)  # pack with the stiffer one: smaller locked overlaps
         seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
-        # A 2-D block lower than long is packed as a square and cut to its height: in a low
-        # box make_specimen's relaxation unloads the packing completely, its contacts open by
-        # more than the cementing gap and only ~1.4 bonds per element form (a square box, like
-        # the calibration specimens: 3.7; docs/tbm_cutter.md)
-        size = list(self.size)
-        packed = size if dim == 3 or size[-1] >= size[0] else [size[0], size[0]]
         try:
-            st, rep = make_specimen("box", packed, d, self.distri_rate,
+            st, rep = make_specimen("box", list(self.size), d, self.distri_rate,
                                     sms[stiff].material, dim, seed, element=sms[stiff].element)
         except ValueError as exc:
             raise BuildError(("size",), str(exc)) from None
-        if packed != size:
-            st = subset_state(st, st.x[:, -1] <= size[-1], rebuild=False)
-            bonds = int((st.cstate == BONDED).sum()) // 2
-            rep = dict(rep, volume=float(np.prod(size)), n_elements=int(st.n), bonds=bonds,
-                       coordination=2.0 * bonds / max(st.n, 1), packed_size=packed,
-                       shape_packing_fraction=float(packing.element_volume(st.r, dim).sum())
-                       / float(np.prod(size)))
         # ---- per-element parameters by layer
         surface = rock_surface(st.x, st.r, d)
         mat, layer = self.layers(st.x, surface)
