@@ -16,6 +16,7 @@ same source is compiled in memory.
 from __future__ import annotations
 
 import functools
+import hashlib
 import importlib.util
 import inspect
 import os
@@ -23,7 +24,7 @@ import sys
 import types
 from pathlib import Path
 
-from geodem.backends import step_bodies
+from geodem.backends import prefetch, step_bodies
 from geodem.core import law
 
 LAW_NAMES = law.HELPERS + ("contact", "rolling", "contact_energy")
@@ -58,6 +59,12 @@ def cache_dir() -> Path:
     return Path(base) / "kernels"
 
 
+def _source_hash(module) -> str:
+    # the generated module imports the intrinsic: naming its source's hash in the generated
+    # text rewrites the module, and so invalidates numba's cache, when the intrinsic changes
+    return hashlib.sha1(inspect.getsource(module).encode()).hexdigest()[:12]
+
+
 def cpu_source(dim: int, rotation: bool, damping: bool, cache: bool = True) -> str:
     """Python source of one CPU kernel variant: the law, the bodies and the prange loops with
     this variant's constants, jitted with the flags the step needs."""
@@ -66,7 +73,8 @@ def cpu_source(dim: int, rotation: bool, damping: bool, cache: bool = True) -> s
              "geodem/backends/step_bodies.py;\nrewritten whenever they change. Do not edit."
              '"""',
              ("import math\n\nimport numba\nfrom numba import prange\n\n"
-              "from geodem.backends.prefetch import prefetch_row"),
+              "from geodem.backends.prefetch import prefetch_row  # source "
+              + _source_hash(prefetch)),
              f"UNBONDED = {law.UNBONDED!r}\nBONDED = {law.BONDED!r}",
              "\n".join(f"{k} = {v!r}" for k, v in _constants(dim, rotation, damping).items())]
     parts += [inspect.getsource(getattr(law, n)) for n in LAW_NAMES]

@@ -27,8 +27,13 @@ def prefetch_row(typingctx, arr, i):
                                         cgutils.unpack_tuple(builder, ary.strides),
                                         aryty.layout, [idx, zero], wraparound=False)
         i32 = ir.IntType(32)
+        if getattr(ptr.type, "is_opaque", False):
+            name = "llvm.prefetch.p0"  # LLVM >= 15, opaque pointers (numba >= 0.6x)
+        else:
+            ptr = builder.bitcast(ptr, ir.IntType(8).as_pointer())  # typed pointers
+            name = "llvm.prefetch.p0i8"
         fnty = ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32])
-        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
+        fn = cgutils.get_or_insert_function(builder.module, fnty, name)
         # read (0), keep in all cache levels (locality 3), data cache (1)
         builder.call(fn, [ptr, ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
         return context.get_dummy_value()
