@@ -31,7 +31,7 @@ LAW_NAMES = law.HELPERS + ("contact", "rolling", "contact_energy")
 BODY_NAMES = ("dof_free", "dof_step", "translate_dofs", "own_position", "branch",
               "own_params", "row_contact", "contact_point", "entry_contact", "dashpot", "roll",
               "finish_dofs", "move_body", "force_body", "energy_body", "owner_body",
-              "finish_body", "mirror_body", "prefetch_partners")
+              "finish_body", "mirror_body", "prefetch_partners", "prefetch_rows")
 PASSES = ("move", "force", "energy", "move_idx", "force_idx", "force_owner", "finish",
           "mirror")
 
@@ -73,7 +73,7 @@ def cpu_source(dim: int, rotation: bool, damping: bool, cache: bool = True) -> s
              "geodem/backends/step_bodies.py;\nrewritten whenever they change. Do not edit."
              '"""',
              ("import math\n\nimport numba\nfrom numba import prange\n\n"
-              "from geodem.backends.prefetch import prefetch_row  # source "
+              "from geodem.backends.prefetch import prefetch_line  # source "
               + _source_hash(prefetch)),
              f"UNBONDED = {law.UNBONDED!r}\nBONDED = {law.BONDED!r}",
              "\n".join(f"{k} = {v!r}" for k, v in _constants(dim, rotation, damping).items())]

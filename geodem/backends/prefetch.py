@@ -1,9 +1,10 @@
-"""``prefetch_row(arr, i)``: a cache hint for the CPU kernels (LLVM's ``llvm.prefetch``).
+"""``prefetch_line(arr, i, offset)``: a cache hint for the CPU kernels (LLVM's ``llvm.prefetch``).
 
-Asks the processor to start loading the cache line that holds ``arr[i, 0]`` of a C-ordered
-2-D array, so that a later read of that row does not wait on memory. It changes no value and
-cannot fault (a prefetch of any address is allowed), so the kernels' results do not depend on
-it. Used by ``geodem.backends.step_bodies.prefetch_partners``; numba only (not CUDA).
+Asks the processor to start loading the cache line that holds the byte ``offset`` of row ``i``
+(index along the first axis) of a C-ordered array of any dimension, so that a later read there
+does not wait on memory. It changes no value and cannot fault (a prefetch of any address is
+allowed), so the kernels' results do not depend on it. Used by
+``geodem.backends.step_bodies.prefetch_partners`` and ``prefetch_rows``; numba only (not CUDA).
 """
 from llvmlite import ir
 from numba import types
@@ -12,26 +13,24 @@ from numba.extending import intrinsic
 
 
 @intrinsic
-def prefetch_row(typingctx, arr, i):
-    if not (isinstance(arr, types.Array) and arr.ndim == 2 and isinstance(i, types.Integer)):
+def prefetch_line(typingctx, arr, i, offset):
+    if not (isinstance(arr, types.Array) and isinstance(i, types.Integer)
+            and isinstance(offset, types.Integer)):
         return None
-    sig = types.void(arr, i)
+    sig = types.void(arr, i, offset)
 
     def codegen(context, builder, signature, args):
-        aryty, ity = signature.args
+        aryty, ity, oty = signature.args
         ary = context.make_array(aryty)(context, builder, args[0])
         idx = context.cast(builder, args[1], ity, types.intp)
-        zero = context.get_constant(types.intp, 0)
-        ptr = cgutils.get_item_pointer2(context, builder, ary.data,
-                                        cgutils.unpack_tuple(builder, ary.shape),
-                                        cgutils.unpack_tuple(builder, ary.strides),
-                                        aryty.layout, [idx, zero], wraparound=False)
+        off = context.cast(builder, args[2], oty, types.intp)
+        stride0 = cgutils.unpack_tuple(builder, ary.strides)[0]  # bytes
+        i8p = ir.IntType(8).as_pointer()
+        base = builder.bitcast(ary.data, i8p)
+        ptr = builder.gep(base, [builder.add(builder.mul(idx, stride0), off)])
         i32 = ir.IntType(32)
-        if getattr(ptr.type, "is_opaque", False):
-            name = "llvm.prefetch.p0"  # LLVM >= 15, opaque pointers (numba >= 0.6x)
-        else:
-            ptr = builder.bitcast(ptr, ir.IntType(8).as_pointer())  # typed pointers
-            name = "llvm.prefetch.p0i8"
+        # LLVM >= 15 with opaque pointers (numba >= 0.6x) names it .p0; typed pointers .p0i8
+        name = "llvm.prefetch.p0" if getattr(ptr.type, "is_opaque", False) else "llvm.prefetch.p0i8"
         fnty = ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32])
         fn = cgutils.get_or_insert_function(builder.module, fnty, name)
         # read (0), keep in all cache levels (locality 3), data cache (1)

@@ -37,7 +37,7 @@ import math
 
 from numba import prange
 
-from geodem.backends.prefetch import prefetch_row
+from geodem.backends.prefetch import prefetch_line
 from geodem.core.law import BONDED, contact, contact_energy, rolling, series
 
 DIM = 3  # placeholders: bound per compiled variant
@@ -515,10 +515,21 @@ def prefetch_partners(i, x, dx, props, nbr, ostart, buf):
         j = nbr[i, k]
         if j < 0:
             break
-        prefetch_row(x, j)
-        prefetch_row(dx, j)
-        prefetch_row(props, j)
-        prefetch_row(buf, j)
+        prefetch_line(x, j, 0)
+        prefetch_line(dx, j, 0)
+        prefetch_line(props, j, 0)
+        prefetch_line(buf, j, 0)
+
+
+def prefetch_rows(i, nbr, cstate, brate, fs):
+    # the owner's own rows (neighbours, states, bond rates, shear springs: 9 cache lines in
+    # 3-D at width 16) are read in order, but the processor's own prefetcher left the pass
+    # waiting on them at 1e5-1e6 elements (x1.09-1.12 with this, docs/performance.md)
+    prefetch_line(nbr, i, 0)
+    prefetch_line(cstate, i, 0)
+    prefetch_line(brate, i, 0)
+    for off in range(0, fs.strides[0], 64):
+        prefetch_line(fs, i, off)
 
 
 # ------------------------------------------------------------------ CPU loops (numba prange)
@@ -563,7 +574,8 @@ def cpu_force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
 # each contact once: one contiguous slab of elements per buffer, posting into that buffer.
 # Slab t always posts into buffer t, whichever thread runs it, so the sums (and the results)
 # depend on the number of buffers only, not on the threads' schedule.
-# ``ahead`` > 0: prefetch the partners of element i + ahead (prefetch_partners); 0: none.
+# ``ahead`` > 0: prefetch the partners of element i + ahead (prefetch_partners) and the rows
+# of element i + 4 ahead (prefetch_rows); 0: none.
 def cpu_force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
                     dt, code_t, code_s, hertz, dth, mr, ahead):
     n = x.shape[0]
@@ -574,6 +586,8 @@ def cpu_force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf
         for i in range(t * n // nb, hi):
             if ahead > 0 and i + ahead < hi:
                 prefetch_partners(i + ahead, x, dx, props, nbr, ostart, b)
+            if ahead > 0 and i + 4 * ahead < hi:
+                prefetch_rows(i + 4 * ahead, nbr, cstate, brate, fs)
             owner_body(i, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, b,
                        dt, code_t, code_s, hertz, dth, mr)
 

@@ -168,6 +168,16 @@ def test_prefetching_changes_no_result_and_is_on_for_large_models_only():
     side = int(np.ceil(np.sqrt(NumbaBackend.PREFETCH_MIN)))
     grid = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)
     big = new_state(grid.astype(float), 0.5, 1.0, kn=1.0, ks=0.5)  # touching discs, a grid
+    big.x[:, 0] += 0.01 * np.sin(grid[:, 1])  # some motion, so the rows are read and written
     nb.build_rows(big, skin=0.1)
-    assert Simulation(big, backend="numba", monitor_every=0).backend.ahead \
-        == NumbaBackend.PREFETCH_AHEAD
+    runs = []
+    for ahead in (NumbaBackend.PREFETCH_AHEAD, 0):  # the 2-D kernel, prefetching or not
+        st = big.copy()
+        sim = Simulation(st, backend="numba", monitor_every=0)
+        assert sim.backend.ahead == NumbaBackend.PREFETCH_AHEAD  # 33,124 elements: on
+        sim.backend.ahead = ahead
+        sim.run(3)
+        runs.append((st.x, st.v, st.fs))
+    assert np.abs(runs[0][1]).max() > 0.0
+    for a, b in zip(*runs):
+        assert np.array_equal(a, b)
