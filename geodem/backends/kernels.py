@@ -83,7 +83,8 @@ def cpu_source(dim: int, rotation: bool, damping: bool, cache: bool = True) -> s
     # _nrt=False: the kernels allocate nothing, and without numba's reference counting a call
     # of an inlined body no longer increments and decrements every array argument's counter
     # (two atomic operations per array, per element): 1.43x on the owner pass of the 1e4 bench
-    # specimen, one thread (docs/performance.md)
+    # specimen, one thread (docs/performance.md). A prange reduction would need it back
+    # (numba allocates its partial sums): the passes have none.
     jit = ['_dev = numba.njit(fastmath=True, error_model="numpy", forceinline=True, cache=False, '
            '_nrt=False)',
            '_par = numba.njit(parallel=True, fastmath=True, error_model="numpy", _nrt=False, '
