@@ -236,12 +236,13 @@ class Simulation:
 
     def _checks(self):
         s, b = self.state, self.backend
-        if not b.all_finite():
-            b.pull(("x", "v"))
-            self._raise_nonfinite()
         interval = self.check_every
         if s.skin > 0.0:
+            # one scan answers both: a non-finite position or velocity makes it non-finite
             disp, speed = b.max_disp_speed()
+            if not (math.isfinite(disp) and math.isfinite(speed)):
+                b.pull(("x", "v"))
+                self._raise_nonfinite()
             rebuild, interval = neighbors.check_plan(disp, s.dt * speed, s.skin, self.check_every)
             if rebuild:
                 b.pull(("x", "v", "x_ref") + s.row_array_names())
@@ -252,6 +253,9 @@ class Simulation:
             else:
                 self._harvest()
         else:
+            if not b.all_finite():
+                b.pull(("x", "v"))
+                self._raise_nonfinite()
             self._harvest()
         self._next_check = s.step + interval
         # a rebuild must not skip the monitor: a run blowing up rebuilds at every check

@@ -77,6 +77,21 @@ def test_instability_nan_stops_run():
         sim.run(100)
 
 
+def test_instability_nan_stops_run_between_neighbour_checks():
+    # with a skin the check's displacement scan is also the finiteness test
+    from geodem.bench import build_specimen
+
+    st = build_specimen(200)
+    assert st.skin > 0.0
+    sim = Simulation(st, backend="numba", monitor_every=0)
+    sim.run(3)
+    st.fload[5, 0] = np.inf
+    with pytest.raises(InstabilityError, match=r"non-finite positions/velocities of elements \[") \
+            as err:
+        sim.run(100)
+    assert "5" in str(err.value).split("elements [")[1].split("]")[0].split(", ")
+
+
 def test_energy_growth_detected():
     st = tb.build(amplitude=0.001)
     sim = Simulation(st, backend="numba", monitor_every=10)
