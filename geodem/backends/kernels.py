@@ -34,6 +34,7 @@ BODY_NAMES = ("dof_free", "dof_step", "translate_dofs", "own_position", "branch"
               "finish_body", "mirror_body", "prefetch_partners", "prefetch_rows")
 PASSES = ("move", "force", "energy", "move_idx", "force_idx", "force_owner", "finish",
           "mirror")
+SERIAL = ("steps",)  # loops that call the passes
 
 
 def _constants(dim, rot, damp):
@@ -79,7 +80,7 @@ def cpu_source(dim: int, rotation: bool, damping: bool, cache: bool = True) -> s
              "\n".join(f"{k} = {v!r}" for k, v in _constants(dim, rotation, damping).items())]
     parts += [inspect.getsource(getattr(law, n)) for n in LAW_NAMES]
     parts += [inspect.getsource(getattr(step_bodies, n)) for n in BODY_NAMES]
-    parts += [inspect.getsource(getattr(step_bodies, "cpu_" + n)) for n in PASSES]
+    parts += [inspect.getsource(getattr(step_bodies, "cpu_" + n)) for n in PASSES + SERIAL]
     # _nrt=False: the kernels allocate nothing, and without numba's reference counting a call
     # of an inlined body no longer increments and decrements every array argument's counter
     # (two atomic operations per array, per element): 1.43x on the owner pass of the 1e4 bench
@@ -91,6 +92,10 @@ def cpu_source(dim: int, rotation: bool, damping: bool, cache: bool = True) -> s
            f'cache={bool(cache)!r})']
     jit += [f"{n} = _dev({n})" for n in LAW_NAMES + BODY_NAMES]
     jit += [f"{n} = _par(cpu_{n})" for n in PASSES]
+    # the stretch of steps calls the passes, each parallel in itself
+    jit.append('_seq = numba.njit(fastmath=True, error_model="numpy", _nrt=False, '
+               f'cache={bool(cache)!r})')
+    jit += [f"{n} = _seq(cpu_{n})" for n in SERIAL]
     parts.append("\n".join(jit))
     return "\n\n\n".join(p.rstrip() for p in parts) + "\n"
 
@@ -133,6 +138,9 @@ def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = 
     rfree, inertia, fdash)`` and ``EXTRA_FORCE = EXTRA_MOVE + (mr,)``: the arrays of the
     options (placeholders for an option that is off: :func:`placeholders`).
 
+    The CPU namespace also has ``steps(nsteps, code_t0, code_s0, ...)``: ``nsteps`` whole steps
+    (move, owner pass, finish) in one call (``geodem.backends.step_bodies.cpu_steps``).
+
     CPU kernels take ``n`` implicitly and loop with ``prange``; CUDA kernels are launched as
     ``kernel[blocks, threads](...)`` with one thread per element.
     """
@@ -142,7 +150,7 @@ def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = 
     damp = bool(damping)
     if target == "cpu":
         mod = _cpu_module(dim, rot, damp)
-        return types.SimpleNamespace(**{n: getattr(mod, n) for n in PASSES})
+        return types.SimpleNamespace(**{n: getattr(mod, n) for n in PASSES + SERIAL})
 
     if target == "cuda":
         # ``cuda`` must be a module global: the CUDA simulator swaps it in the kernels' globals

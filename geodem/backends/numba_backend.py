@@ -8,7 +8,7 @@ from geodem.backends import register
 from geodem.backends.kernels import EXTRA_FORCE, EXTRA_MOVE, make_kernels, placeholders
 from geodem.core.checks import any_at_least
 from geodem.core.neighbors import _max_disp_speed, owner_tables, sort_rows
-from geodem.core.state import BROKEN_BASE
+from geodem.core.state import BROKEN_BASE, broken_code
 
 
 class HostBackend:
@@ -195,6 +195,27 @@ class NumbaBackend(HostBackend):
             self.k.force(*args)
         else:
             self.k.force_idx(self.idx, *args)
+
+    def steps(self, dt, nsteps, step0):
+        """Advance ``nsteps`` whole steps (``move`` + ``force``) from step ``step0`` in one call
+        of the kernels, as the engine does between two events. Returns False, having done
+        nothing, where the model takes the per-step path (awake elements only, rows taken
+        from both sides)."""
+        s = self.s
+        if s.nbr is not self.rows:
+            self._rows_changed()
+        if not (self.once and self.idx is None and self.tables is not None):
+            return False
+        extra = self._extra(EXTRA_FORCE)  # first: it picks the variant and sizes the buffers
+        g = s.gravity
+        ostart, mirror = self.tables
+        self.k.steps(int(nsteps), broken_code(step0 + 1, 1), broken_code(step0 + 1, 2),
+                     s.x, s.v, s.a, s.dx, s.free, s.fload, s.props, s.m, s.eta, s.nbr, ostart,
+                     mirror, s.cstate, s.fs, s.brate, self.buf, s.q_visc, s.q_break_n,
+                     s.q_break_s, s.q_fric, s.w_ext, g[0], g[1], g[2] if s.dim == 3 else 0.0,
+                     dt, int(s.hertz), self.ahead, *extra)
+        self.dirty = True
+        return True
 
     def elastic_energy(self):
         s = self.s

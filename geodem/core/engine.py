@@ -2,7 +2,9 @@
 
 The loop (``Simulation.run``) does per step exactly two backend calls, ``move`` and ``force``
 (velocity Verlet, see ``geodem.backends.step_bodies``), and nothing else: no Python loop over
-elements, no allocation, no host/device copy. Every ``check_every`` steps at most (sooner when
+elements, no allocation, no host/device copy. A backend with ``steps`` (numba) takes the
+stretch of steps up to the next event (check, coupled field, callback) in one call instead,
+the same passes in the same order. Every ``check_every`` steps at most (sooner when
 elements move fast) it asks whether the neighbour rows need a rebuild (skin test), harvests new
 cracks and checks that the state is finite. Energies are computed on demand (``energies``).
 
@@ -140,6 +142,10 @@ class Simulation:
         (:mod:`geodem.labtests.stability`): the run then stops with InstabilityError.
     """
 
+    # the steps between two events (check, field, callback) in one backend call where the
+    # backend offers it (``steps``: numba); False: one call per pass and step, the same results
+    stretches = True
+
     def __init__(self, state, backend=None, dt=None, dt_fraction=timestep.DEFAULT_FRACTION,
                  check_every=10, overlap_limit=0.5, monitor_every=1000,
                  allow_unstable_dt=False):
@@ -184,12 +190,30 @@ class Simulation:
         s, b = self.state, self.backend
         dt = s.dt
         every_field = self._field_every
-        for _ in range(int(nsteps)):
-            b.move(dt)
-            nxt = s.step + 1
-            b.force(dt, broken_code(nxt, 1), broken_code(nxt, 2))
+        stretch = getattr(b, "steps", None) if self.stretches else None
+        left = int(nsteps)
+        while left > 0:
+            # the steps up to the next event (check, field, callback) in one call where the
+            # backend can; the same steps, bit for bit, as one at a time
+            k = 1
+            if stretch is not None:
+                k = min(left, max(1, self._next_check - s.step))
+                if every_field:
+                    k = min(k, every_field - s.step % every_field)
+                if callback is not None and every:
+                    k = min(k, every - s.step % every)
+            if k > 1 and stretch(dt, k, s.step):
+                for _ in range(k):
+                    s.time += dt  # as k single steps add it
+                nxt = s.step + k
+            else:
+                k = 1
+                b.move(dt)
+                nxt = s.step + 1
+                b.force(dt, broken_code(nxt, 1), broken_code(nxt, 2))
+                s.time += dt
             s.step = nxt
-            s.time += dt
+            left -= k
             if every_field and nxt % every_field == 0:
                 self._advance_fields(nxt)
             if nxt >= self._next_check:
