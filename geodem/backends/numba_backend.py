@@ -169,28 +169,36 @@ class NumbaBackend(HostBackend):
         else:
             self.k.move_idx(self.idx, *args)
 
+    def _each_once(self):
+        """Whether the step takes each contact once (owner pass + finish); rows replaced
+        without a push (a wider width) get their tables first."""
+        if self.s.nbr is not self.rows:
+            self._rows_changed()
+        return self.once and self.idx is None and self.tables is not None
+
+    def _gravity(self):
+        g = self.s.gravity
+        return g[0], g[1], (g[2] if self.s.dim == 3 else 0.0)
+
     def force(self, dt, code_t, code_s):
         s = self.s
-        g = s.gravity
-        g2 = g[2] if s.dim == 3 else 0.0
         extra = self._extra(EXTRA_FORCE)
-        if s.nbr is not self.rows:
-            self._rows_changed()  # rows replaced without a push (a wider width)
-        if self.once and self.idx is None and self.tables is not None:
+        g0, g1, g2 = self._gravity()
+        if self._each_once():
             ostart, mirror = self.tables
             w, wa, dth, rfree, inertia, fdash, mr = extra
             self.k.force_owner(s.x, s.dx, s.props, s.m, s.nbr, ostart, mirror, s.cstate, s.fs,
                                s.brate, self.buf, dt, code_t, code_s, int(s.hertz), dth, mr,
                                self.ahead)
             self.k.finish(s.v, s.a, s.dx, s.free, s.fload, s.m, s.eta, self.buf, s.q_visc,
-                          s.q_break_n, s.q_break_s, s.q_fric, s.w_ext, g[0], g[1], g2, dt,
+                          s.q_break_n, s.q_break_s, s.q_fric, s.w_ext, g0, g1, g2, dt,
                           *extra)
             self.dirty = True
             return
         self._sync_partners()
         args = (s.x, s.v, s.a, s.dx, s.free, s.fload, s.props, s.m, s.eta, s.nbr, s.cstate,
                 s.fs, s.brate, s.q_visc, s.q_break_n, s.q_break_s, s.q_fric, s.w_ext,
-                g[0], g[1], g2, dt, code_t, code_s, int(s.hertz), *extra)
+                g0, g1, g2, dt, code_t, code_s, int(s.hertz), *extra)
         if self.idx is None:
             self.k.force(*args)
         else:
@@ -201,19 +209,16 @@ class NumbaBackend(HostBackend):
         of the kernels, as the engine does between two events. Returns False, having done
         nothing, where the model takes the per-step path (awake elements only, rows taken
         from both sides)."""
-        s = self.s
-        if s.nbr is not self.rows:
-            self._rows_changed()
-        if not (self.once and self.idx is None and self.tables is not None):
-            return False
         extra = self._extra(EXTRA_FORCE)  # first: it picks the variant and sizes the buffers
-        g = s.gravity
+        if not self._each_once():
+            return False
+        s = self.s
         ostart, mirror = self.tables
         self.k.steps(int(nsteps), broken_code(step0 + 1, 1), broken_code(step0 + 1, 2),
                      s.x, s.v, s.a, s.dx, s.free, s.fload, s.props, s.m, s.eta, s.nbr, ostart,
                      mirror, s.cstate, s.fs, s.brate, self.buf, s.q_visc, s.q_break_n,
-                     s.q_break_s, s.q_fric, s.w_ext, g[0], g[1], g[2] if s.dim == 3 else 0.0,
-                     dt, int(s.hertz), self.ahead, *extra)
+                     s.q_break_s, s.q_fric, s.w_ext, *self._gravity(), dt, int(s.hertz),
+                     self.ahead, *extra)
         self.dirty = True
         return True
 

@@ -606,9 +606,9 @@ def cpu_mirror(nbr, ostart, mirror, cstate, fs, mr):
 
 # several whole steps in one call: the engine's stretch of steps between two events (a check,
 # a coupled field, a callback), so that Python, numba's dispatch and the unboxing of the
-# arrays are paid once per stretch instead of three times per step (1.3-1.5x for models of
-# ~1e3 elements, docs/performance.md). The step k of the stretch (0-based) is step
-# step0 + 1 + k; its broken-bond codes are code_t0 + 2k, code_s0 + 2k
+# arrays are paid once per stretch instead of three times per step (1.35x at 200 elements,
+# 1.11x at 1,500, 1.06x at 1e4: docs/performance.md). The step k of the stretch (0-based)
+# is step step0 + 1 + k; its broken-bond codes are code_t0 + 2k, code_s0 + 2k
 # (geodem.core.state.broken_code grows by 2 per step).
 def cpu_steps(nsteps, code_t0, code_s0, x, v, a, dx, free, fload, props, m, eta, nbr, ostart,
               mirror, cstate, fs, brate, buf, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt,
