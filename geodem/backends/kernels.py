@@ -31,7 +31,7 @@ LAW_NAMES = law.HELPERS + ("contact", "rolling", "contact_energy")
 BODY_NAMES = ("dof_free", "dof_step", "translate_dofs", "own_position", "branch",
               "own_params", "row_contact", "contact_point", "entry_contact", "dashpot", "roll",
               "finish_dofs", "move_body", "force_body", "energy_body", "owner_body",
-              "finish_body", "mirror_body", "prefetch_partners", "prefetch_rows")
+              "take_post", "finish_body", "mirror_body", "prefetch_partners", "prefetch_rows")
 PASSES = ("move", "force", "energy", "move_idx", "force_idx", "force_owner", "finish",
           "mirror")
 SERIAL = ("steps",)  # loops that call the passes

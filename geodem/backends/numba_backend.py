@@ -7,7 +7,7 @@ import numpy as np
 from geodem.backends import register
 from geodem.backends.kernels import EXTRA_FORCE, EXTRA_MOVE, make_kernels, placeholders
 from geodem.core.checks import any_at_least
-from geodem.core.neighbors import _max_disp_speed, owner_tables, sort_rows
+from geodem.core.neighbors import _max_disp_speed, cross_tables, owner_tables, sort_rows
 from geodem.core.state import BROKEN_BASE, broken_code
 
 
@@ -102,8 +102,8 @@ class NumbaBackend(HostBackend):
         if (s.rotation, s.contact_damping) != self.k_key:  # the variant (changes after attach)
             self.k_key = (s.rotation, s.contact_damping)
             self.k = make_kernels(s.dim, "cpu", *self.k_key)
-            if self.buf is not None and self.buf.shape != self._buf_shape():
-                self.buf = np.zeros(self._buf_shape())  # an option's columns
+            if self.buf is not None and self.buf.shape[1] != self._width():
+                self._buffers()  # an option's columns
         ph = self._ph
         return tuple(ph[k] if getattr(s, k) is None else getattr(s, k) for k in names)
 
@@ -117,19 +117,25 @@ class NumbaBackend(HostBackend):
             self.rows = s.nbr
             self.tables = owner_tables(s.nbr)
         if self.tables is None:
-            self.buf = None
+            self.buf = self.cross = None
             return
         self.ahead = self.PREFETCH_AHEAD if s.n >= self.PREFETCH_MIN else 0
-        # one buffer per thread of numba's pool (fixed per process): the results depend on
-        # the number of buffers, so a run repeats bit for bit at the same NUMBA_NUM_THREADS
-        shape = self._buf_shape()
+        # one slab per thread of numba's pool (fixed per process): the results depend on the
+        # number of slabs, so a run repeats bit for bit at the same NUMBA_NUM_THREADS
+        self.slabs = max(1, min(numba.config.NUMBA_NUM_THREADS, s.n))
+        self.cross = cross_tables(s.nbr, self.tables[0], self.slabs)
+        self._buffers()
+
+    def _width(self):
+        s = self.s
+        return 12 if (s.rotation or s.contact_damping) else 6  # step_bodies.owner_body
+
+    def _buffers(self):
+        """The posts' buffer: a row per element, then a spill row per contact that crosses a
+        slab boundary (``neighbors.cross_tables``); every finish empties it."""
+        shape = (self.s.n + max(1, int(self.cross[0][-1])), self._width())
         if self.buf is None or self.buf.shape != shape:
             self.buf = np.zeros(shape)
-
-    def _buf_shape(self):
-        s = self.s
-        width = 12 if (s.rotation or s.contact_damping) else 6  # step_bodies.owner_body
-        return (max(1, min(numba.config.NUMBA_NUM_THREADS, s.n)), s.n, width)
 
     def _sync_partners(self):
         if self.dirty:
@@ -153,7 +159,8 @@ class NumbaBackend(HostBackend):
     def scratch_nbytes(self) -> int:
         n = super().scratch_nbytes()
         if self.tables is not None:
-            n += sum(int(t.nbytes) for t in self.tables) + int(self.buf.nbytes)
+            n += sum(int(t.nbytes) for t in self.tables + self.cross)
+            n += int(self.buf.nbytes)
         return n
 
     def set_active(self, idx=None):
@@ -187,11 +194,12 @@ class NumbaBackend(HostBackend):
         if self._each_once():
             ostart, mirror = self.tables
             w, wa, dth, rfree, inertia, fdash, mr = extra
+            cstart, spill, inc_start = self.cross
             self.k.force_owner(s.x, s.dx, s.props, s.m, s.nbr, ostart, mirror, s.cstate, s.fs,
-                               s.brate, self.buf, dt, code_t, code_s, int(s.hertz), dth, mr,
-                               self.ahead)
-            self.k.finish(s.v, s.a, s.dx, s.free, s.fload, s.m, s.eta, self.buf, s.q_visc,
-                          s.q_break_n, s.q_break_s, s.q_fric, s.w_ext, g0, g1, g2, dt,
+                               s.brate, self.buf, cstart, spill, self.slabs, dt, code_t,
+                               code_s, int(s.hertz), dth, mr, self.ahead)
+            self.k.finish(s.v, s.a, s.dx, s.free, s.fload, s.m, s.eta, self.buf, inc_start,
+                          s.q_visc, s.q_break_n, s.q_break_s, s.q_fric, s.w_ext, g0, g1, g2, dt,
                           *extra)
             self.dirty = True
             return
@@ -214,9 +222,11 @@ class NumbaBackend(HostBackend):
             return False
         s = self.s
         ostart, mirror = self.tables
+        cstart, spill, inc_start = self.cross
         self.k.steps(int(nsteps), broken_code(step0 + 1, 1), broken_code(step0 + 1, 2),
                      s.x, s.v, s.a, s.dx, s.free, s.fload, s.props, s.m, s.eta, s.nbr, ostart,
-                     mirror, s.cstate, s.fs, s.brate, self.buf, s.q_visc, s.q_break_n,
+                     mirror, s.cstate, s.fs, s.brate, self.buf, cstart, spill,
+                     inc_start, self.slabs, s.q_visc, s.q_break_n,
                      s.q_break_s, s.q_fric, s.w_ext, *self._gravity(), dt, int(s.hertz),
                      self.ahead, *extra)
         self.dirty = True

@@ -20,7 +20,8 @@ The step is two passes over elements (velocity Verlet, PHYSICS.md section 3):
 
    On the CPU the force pass is usually split in two instead (``owner_body`` +
    ``finish_body``, section "each contact once" below): each contact is evaluated once, by the
-   lower index, which posts the partner's share into a per-slab buffer; ``finish_body`` then
+   lower index, which posts the partner's share into a buffer (the partner's row if it is in
+   the owner's slab, else the contact's spill row); ``finish_body`` then
    ends every element's step exactly as ``force_body`` does (``finish_dofs``). The GPU and
    steps over a list of awake elements keep ``force_body``.
 
@@ -361,15 +362,26 @@ def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr):
 # ------------------------------------------------ each contact once (CPU)
 # The force pass above evaluates every contact twice, once from each row. These bodies
 # evaluate it once, from the row of its owner i < j (the tail of i's sorted row, from
-# ``ostart[i]``), and post what j receives into a buffer: ``buf`` (N, BUF) holds per element
-# the force (columns 0-2), the half heats q_f, q_bn, q_bs (3-5), and with the options the
-# dashpot force (6-8) and the torque (9-11). ``finish_body`` then sums the buffers, empties
-# them and ends the step exactly as ``force_body`` does (``finish_dofs``). Only the owner's
-# slot of a contact is stepped: its state code is copied to the partner's slot
-# (``mirror``) when it changes, its shear spring and rolling moment by ``mirror_body`` when
-# the partner slots are wanted (``geodem.backends.numba_backend``).
-def owner_body(i, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
-               dt, code_t, code_s, hertz, dth, mr):
+# ``ostart[i]``), and post what j receives into ``buf``. The elements are cut into slabs of
+# consecutive indices, one per thread of the pool, run in parallel; ``buf`` has a row per
+# element and a spill row per contact that crosses a slab boundary:
+# * a partner in the owner's slab (``j < hi``) gets the post added to its own row: no other
+#   slab writes there;
+# * a partner in a later slab gets it in the contact's spill row: the row's crossing
+#   contacts are ``c = cstart[i]`` onwards, contact ``c`` posts into row ``n + spill[c]``,
+#   and the spill rows are grouped by partner, so that ``finish_body`` adds element j's as
+#   one run, ``n + inc_start[j]`` to ``n + inc_start[j + 1]`` (``neighbors.cross_tables``).
+# A post holds the force (columns 0-2), the half heats q_f, q_bn, q_bs (3-5), and with the
+# options the dashpot force (6-8) and the torque (9-11). ``finish_body`` then sums them in
+# a fixed order, empties the rows and ends the step exactly as ``force_body`` does
+# (``finish_dofs``). One buffer whatever the number of threads (48 B per element plus ~4 B
+# of spill rows at two slabs, docs/performance.md).
+# Only the owner's slot of a contact is stepped: its state code is copied to the partner's
+# slot (``mirror``) when it changes, its shear spring and rolling moment by ``mirror_body``
+# when the partner slots are wanted (``geodem.backends.numba_backend``).
+def owner_body(i, hi, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
+               spill, c, dt, code_t, code_s, hertz, dth, mr):
+    n = x.shape[0]
     xi0, xi1, xi2, di0, di1, di2 = own_position(i, x, dx)
     pi = own_params(i, props)
     ri, kni, ksi = pi[0], pi[1], pi[2]
@@ -398,29 +410,24 @@ def owner_body(i, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
             cstate[j, mirror[i, k]] = csn
         a0 = fn * nx + sx
         a1 = fn * ny + sy
+        a2 = 0.0
         f0 += a0
         f1 += a1
-        buf[j, 0] -= a0
-        buf[j, 1] -= a1
         if DIM == 3:
             a2 = fn * nz + sz
             f2 += a2
-            buf[j, 2] -= a2
         qn += eqn
         qs += eqs
-        if eqn != 0.0 or eqs != 0.0:  # breaks are rare: skip the scatter otherwise
-            buf[j, 4] += 0.5 * eqn
-            buf[j, 5] += 0.5 * eqs
+        fd = 0.0
         if DAMP:
             fd = dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, ez, kni, props, m, dt)
-            if fd != 0.0:
-                d0 += fd * nx
-                d1 += fd * ny
-                buf[j, 6] -= fd * nx
-                buf[j, 7] -= fd * ny
-                if DIM == 3:
-                    d2 += fd * nz
-                    buf[j, 8] -= fd * nz
+            d0 += fd * nx
+            d1 += fd * ny
+            if DIM == 3:
+                d2 += fd * nz
+        u0 = 0.0
+        u1 = 0.0
+        u2 = 0.0
         if ROT:
             # j receives -Fs at -R_j n: torque R_j n x Fs, like i's with R_j; moment -M
             mx, my, mz, eqr = roll(i, j, k, fn, nx, ny, nz, ri, rj, ksi, props, dth, mr)
@@ -430,13 +437,35 @@ def owner_body(i, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
                 cy = nz * sx - nx * sz
                 t0 += ri * cx + mx
                 t1 += ri * cy + my
-                buf[j, 9] += rj * cx - mx
-                buf[j, 10] += rj * cy - my
+                u0 = rj * cx - mx
+                u1 = rj * cy - my
             t2 += ri * cz + mz
-            buf[j, 11] += rj * cz - mz
+            u2 = rj * cz - mz
             eqf += eqr
         qf += eqf
-        buf[j, 3] += 0.5 * eqf
+        # the post's row: j's own row in the owner's slab, else the contact's spill row
+        r = j
+        if j >= hi:
+            r = n + spill[c]
+            c += 1
+        buf[r, 0] -= a0
+        buf[r, 1] -= a1
+        if DIM == 3:
+            buf[r, 2] -= a2
+        if eqn != 0.0 or eqs != 0.0:  # breaks are rare: skip the scatter otherwise
+            buf[r, 4] += 0.5 * eqn
+            buf[r, 5] += 0.5 * eqs
+        if DAMP and fd != 0.0:
+            buf[r, 6] -= fd * nx
+            buf[r, 7] -= fd * ny
+            if DIM == 3:
+                buf[r, 8] -= fd * nz
+        if ROT:
+            if DIM == 3:
+                buf[r, 9] += u0
+                buf[r, 10] += u1
+            buf[r, 11] += u2
+        buf[r, 3] += 0.5 * eqf
     buf[i, 0] += f0
     buf[i, 1] += f1
     buf[i, 2] += f2
@@ -453,8 +482,33 @@ def owner_body(i, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
         buf[i, 11] += t2
 
 
-def finish_body(i, v, a, dx, free, fload, m, eta, buf, q_visc, q_bn, q_bs, q_f, w_ext,
-                g0, g1, g2, dt, ext):
+def take_post(buf, r, f0, f1, f2, qf, qn, qs, d0, d1, d2, t0, t1, t2):
+    # add row r of the posts' buffer to the sums and empty it
+    f0 += buf[r, 0]
+    f1 += buf[r, 1]
+    f2 += buf[r, 2]
+    qf += buf[r, 3]
+    qn += buf[r, 4]
+    qs += buf[r, 5]
+    if DAMP:
+        d0 += buf[r, 6]
+        d1 += buf[r, 7]
+        d2 += buf[r, 8]
+    if ROT:
+        t0 += buf[r, 9]
+        t1 += buf[r, 10]
+        t2 += buf[r, 11]
+    for c in range(buf.shape[1]):
+        buf[r, c] = 0.0
+    return f0, f1, f2, qf, qn, qs, d0, d1, d2, t0, t1, t2
+
+
+def finish_body(i, v, a, dx, free, fload, m, eta, buf, inc_start,
+                q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, ext):
+    # the element's spill rows (the posts from earlier slabs, in owner order), then its own
+    # row (its slab's posts and its own contacts), each emptied for the next step. With up
+    # to two slabs this is, bit for bit, the order of the per-thread buffers this replaced
+    # (the earlier slab's sum first)
     f0 = 0.0
     f1 = 0.0
     f2 = 0.0
@@ -467,23 +521,12 @@ def finish_body(i, v, a, dx, free, fload, m, eta, buf, q_visc, q_bn, q_bs, q_f, 
     t0 = 0.0
     t1 = 0.0
     t2 = 0.0
-    for t in range(buf.shape[0]):
-        f0 += buf[t, i, 0]
-        f1 += buf[t, i, 1]
-        f2 += buf[t, i, 2]
-        qf += buf[t, i, 3]
-        qn += buf[t, i, 4]
-        qs += buf[t, i, 5]
-        if DAMP:
-            d0 += buf[t, i, 6]
-            d1 += buf[t, i, 7]
-            d2 += buf[t, i, 8]
-        if ROT:
-            t0 += buf[t, i, 9]
-            t1 += buf[t, i, 10]
-            t2 += buf[t, i, 11]
-        for c in range(buf.shape[2]):
-            buf[t, i, c] = 0.0
+    n = v.shape[0]
+    for r in range(n + inc_start[i], n + inc_start[i + 1]):
+        f0, f1, f2, qf, qn, qs, d0, d1, d2, t0, t1, t2 = take_post(
+            buf, r, f0, f1, f2, qf, qn, qs, d0, d1, d2, t0, t1, t2)
+    f0, f1, f2, qf, qn, qs, d0, d1, d2, t0, t1, t2 = take_post(
+        buf, i, f0, f1, f2, qf, qn, qs, d0, d1, d2, t0, t1, t2)
     finish_dofs(i, f0, f1, f2, d0, d1, d2, t0, t1, t2, qn, qs, qf,
                 v, a, dx, free, fload, m, eta, q_visc, q_bn, q_bs, q_f, w_ext,
                 g0, g1, g2, dt, ext)
@@ -507,10 +550,12 @@ def mirror_body(i, nbr, ostart, mirror, cstate, fs, mr):
                     mr[j, c, d] = -mr[i, k, d]
 
 
-def prefetch_partners(i, x, dx, props, nbr, ostart, buf):
+def prefetch_partners(i, hi, x, dx, props, nbr, ostart, buf, spill, c):
     # ask for the cache lines of the partners of owner i a few elements ahead: in a model
     # larger than the caches the partners' rows are the pass's scattered reads, and waiting
-    # for them cost ~20 % of the pass at 1e6 elements (docs/performance.md); a hint only
+    # for them cost ~20 % of the pass at 1e6 elements (docs/performance.md); and for the
+    # row of buf each post goes to (owner_body); a hint only
+    n = x.shape[0]
     for k in range(ostart[i], nbr.shape[1]):
         j = nbr[i, k]
         if j < 0:
@@ -518,7 +563,11 @@ def prefetch_partners(i, x, dx, props, nbr, ostart, buf):
         prefetch_line(x, j, 0)
         prefetch_line(dx, j, 0)
         prefetch_line(props, j, 0)
-        prefetch_line(buf, j, 0)
+        if j < hi:
+            prefetch_line(buf, j, 0)
+        else:
+            prefetch_line(buf, n + spill[c], 0)
+            c += 1
 
 
 def prefetch_rows(i, nbr, cstate, brate, fs):
@@ -571,32 +620,31 @@ def cpu_force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                    code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr))
 
 
-# each contact once: one contiguous slab of elements per buffer, posting into that buffer.
-# Slab t always posts into buffer t, whichever thread runs it, so the sums (and the results)
-# depend on the number of buffers only, not on the threads' schedule.
+# each contact once: slabs of ``slab`` consecutive elements in parallel (owner_body). The
+# slabs and every sum's order are fixed by the model, not by the threads' number or schedule.
 # ``ahead`` > 0: prefetch the partners of element i + ahead (prefetch_partners) and the rows
 # of element i + 4 ahead (prefetch_rows); 0: none.
 def cpu_force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
-                    dt, code_t, code_s, hertz, dth, mr, ahead):
+                    cstart, spill, nslab, dt, code_t, code_s, hertz, dth, mr, ahead):
     n = x.shape[0]
-    nb = buf.shape[0]
-    for t in prange(nb):
-        b = buf[t]
-        hi = (t + 1) * n // nb
-        for i in range(t * n // nb, hi):
+    for t in prange(nslab):
+        hi = (t + 1) * n // nslab
+        for i in range(t * n // nslab, hi):
             if ahead > 0 and i + ahead < hi:
-                prefetch_partners(i + ahead, x, dx, props, nbr, ostart, b)
+                prefetch_partners(i + ahead, hi, x, dx, props, nbr, ostart, buf, spill,
+                                  cstart[i + ahead])
             if ahead > 0 and i + 4 * ahead < hi:
                 prefetch_rows(i + 4 * ahead, nbr, cstate, brate, fs)
-            owner_body(i, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, b,
-                       dt, code_t, code_s, hertz, dth, mr)
+            owner_body(i, hi, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
+                       spill, cstart[i], dt, code_t, code_s, hertz, dth, mr)
 
 
-def cpu_finish(v, a, dx, free, fload, m, eta, buf, q_visc, q_bn, q_bs, q_f, w_ext,
-               g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr):
+def cpu_finish(v, a, dx, free, fload, m, eta, buf, inc_start, q_visc, q_bn,
+               q_bs, q_f, w_ext, g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr):
     for i in prange(v.shape[0]):
-        finish_body(i, v, a, dx, free, fload, m, eta, buf, q_visc, q_bn, q_bs, q_f, w_ext,
-                    g0, g1, g2, dt, (w, wa, dth, rfree, inertia, fdash, mr))
+        finish_body(i, v, a, dx, free, fload, m, eta, buf, inc_start,
+                    q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt,
+                    (w, wa, dth, rfree, inertia, fdash, mr))
 
 
 def cpu_mirror(nbr, ostart, mirror, cstate, fs, mr):
@@ -611,12 +659,14 @@ def cpu_mirror(nbr, ostart, mirror, cstate, fs, mr):
 # is step step0 + 1 + k; its broken-bond codes are code_t0 + 2k, code_s0 + 2k
 # (geodem.core.state.broken_code grows by 2 per step).
 def cpu_steps(nsteps, code_t0, code_s0, x, v, a, dx, free, fload, props, m, eta, nbr, ostart,
-              mirror, cstate, fs, brate, buf, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt,
-              hertz, ahead, w, wa, dth, rfree, inertia, fdash, mr):
+              mirror, cstate, fs, brate, buf, cstart, spill, inc_start, nslab, q_visc,
+              q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, hertz, ahead, w, wa, dth, rfree, inertia,
+              fdash, mr):
     for k in range(nsteps):
         move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt, w, wa, dth, rfree, inertia,
              fdash)
-        force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf, dt,
-                    code_t0 + 2 * k, code_s0 + 2 * k, hertz, dth, mr, ahead)
-        finish(v, a, dx, free, fload, m, eta, buf, q_visc, q_bn, q_bs, q_f, w_ext,
-               g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr)
+        force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
+                    cstart, spill, nslab, dt, code_t0 + 2 * k, code_s0 + 2 * k, hertz, dth, mr,
+                    ahead)
+        finish(v, a, dx, free, fload, m, eta, buf, inc_start, q_visc, q_bn,
+               q_bs, q_f, w_ext, g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr)

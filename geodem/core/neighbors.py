@@ -914,6 +914,64 @@ def owner_tables(nbr: np.ndarray):
     return ostart, mirror
 
 
+@njit(cache=True)
+def _cross_tables(nbr, ostart, nslab, cstart, inc_start):
+    # the owned contacts whose partner is in a later slab, counted in (owner, column) order;
+    # their spill rows are grouped by partner, in that order within a partner (a stable
+    # counting sort): the finish pass then reads each element's spill rows as one run
+    n, w = nbr.shape
+    c = 0
+    for t in range(nslab):
+        hi = (t + 1) * n // nslab
+        for i in range(t * n // nslab, hi):
+            cstart[i] = c
+            for k in range(ostart[i], w):
+                j = nbr[i, k]
+                if j < 0:
+                    break
+                if j >= hi:
+                    inc_start[j + 1] += 1
+                    c += 1
+    cstart[n] = c
+    for j in range(n):
+        inc_start[j + 1] += inc_start[j]
+    spill = np.zeros(c + 1, np.int32)  # one spare entry
+    fill = inc_start[:-1].copy()
+    c = 0
+    for t in range(nslab):
+        hi = (t + 1) * n // nslab
+        for i in range(t * n // nslab, hi):
+            for k in range(ostart[i], w):
+                j = nbr[i, k]
+                if j < 0:
+                    break
+                if j >= hi:
+                    spill[c] = fill[j]
+                    fill[j] += 1
+                    c += 1
+    return spill
+
+
+def cross_tables(nbr: np.ndarray, ostart: np.ndarray, nslab: int):
+    """Where the owner pass posts the contacts that cross a slab boundary.
+
+    The ``n`` elements are cut into ``nslab`` slabs of consecutive indices, slab ``t`` from
+    ``t n // nslab`` up to ``hi = (t + 1) n // nslab``; ``ostart`` from :func:`owner_tables`.
+    Returns ``(cstart, spill, inc_start)`` (int32). The owned contacts of row ``i`` whose
+    partner ``j`` lies in a later slab (``j >= hi`` of ``i``'s slab) are the crossing
+    contacts ``cstart[i]`` onwards, in column order (``cstart[n]`` of them in all); crossing
+    contact ``c`` posts into spill row ``spill[c]`` (``spill`` has one spare entry at the
+    end); element ``j``'s spill rows are ``inc_start[j]`` to ``inc_start[j + 1] - 1``, its
+    crossing contacts in (owner, column) order.
+    """
+    n = nbr.shape[0]
+    nslab = max(1, min(int(nslab), n))
+    cstart = np.zeros(n + 1, np.int32)
+    inc_start = np.zeros(n + 1, np.int32)
+    spill = _cross_tables(nbr, ostart, nslab, cstart, inc_start)
+    return cstart, spill, inc_start
+
+
 @njit(cache=True, parallel=True)
 def _check_rows(nbr, cst, br):
     # per row: 0 ok, 1 hole (not compact), 2 out of range, 3 self, 4 duplicate,

@@ -145,7 +145,7 @@ def test_an_option_switched_on_after_attach_gets_its_buffer_columns():
         sim.run(5)
         enable_rotation(sim.state, mu_r=0.2)  # no push: the backend notices the new variant
         sim.run(40)
-    assert sims[0].backend.buf.shape[2] == 12
+    assert sims[0].backend.buf.shape[1] == 12
     assert np.abs(b.w).max() > 0 and np.abs(a.w - b.w).max() < 1e-9 * np.abs(b.w).max()
     assert np.abs(a.v - b.v).max() < 1e-9 * np.abs(b.v).max()
 
@@ -181,3 +181,73 @@ def test_prefetching_changes_no_result_and_is_on_for_large_models_only():
     assert np.abs(runs[0][1]).max() > 0.0
     for a, b in zip(*runs):
         assert np.array_equal(a, b)
+
+
+def test_cross_tables_by_hand():
+    # chain_rows: owned contacts 0-1, 0-2, 1-3, 2-3; slabs of 2 elements: {0, 1}, {2, 3}
+    st = chain_rows()
+    ostart, _ = nb.owner_tables(st.nbr)
+    cstart, spill, inc_start = nb.cross_tables(st.nbr, ostart, 2)  # two slabs
+    # crossing contacts in owner order: c=0 is 0-2 (row 0, column 1), c=1 is 1-3
+    assert cstart.tolist() == [0, 1, 2, 2, 2]
+    # element 2 receives spill row 0, element 3 spill row 1
+    assert inc_start.tolist() == [0, 0, 0, 1, 2]
+    assert spill[:2].tolist() == [0, 1] and spill.size == 3  # one spare entry
+    # one slab: nothing crosses; four slabs of one element: every owned contact crosses
+    cstart, spill, inc_start = nb.cross_tables(st.nbr, ostart, 1)
+    assert cstart[-1] == 0 and not inc_start.any()
+    cstart, spill, inc_start = nb.cross_tables(st.nbr, ostart, 4)
+    assert cstart.tolist() == [0, 2, 3, 4, 4] and inc_start.tolist() == [0, 0, 1, 2, 4]
+    # element 3's rows hold 1-3 (owner 1: c=2) before 2-3 (owner 2: c=3)
+    assert spill[:4].tolist() == [0, 1, 2, 3]
+
+
+def test_spill_rows_are_grouped_by_partner_in_owner_order():
+    st = breaking_block(1500)
+    ostart, _ = nb.owner_tables(st.nbr)
+    cstart, spill, inc_start = nb.cross_tables(st.nbr, ostart, 5)
+    ends = [(t + 1) * st.n // 5 for t in range(5)]  # slab t: from t n // 5 to its end
+    owners, partners = [], []
+    for i in range(st.n):
+        hi = next(e for e in ends if i < e)
+        row = st.nbr[i, ostart[i]:]
+        cross = row[(row >= hi)]
+        assert cstart[i + 1] - cstart[i] == cross.size
+        owners += [i] * cross.size
+        partners += cross.tolist()
+    nc = len(owners)
+    assert nc > 100 and cstart[-1] == nc
+    target = np.empty(nc, int)
+    target[spill[:nc]] = np.arange(nc)  # crossing contact posted into each spill row
+    assert sorted(spill[:nc].tolist()) == list(range(nc))  # one row per contact
+    p = np.asarray(partners)[target]
+    o = np.asarray(owners)[target]
+    # rows of element j are inc_start[j]..inc_start[j+1]-1, its contacts by ascending owner
+    assert np.array_equal(p, np.repeat(np.arange(st.n), np.diff(inc_start)))
+    assert all(np.all(np.diff(o[inc_start[j]:inc_start[j + 1]]) > 0) for j in range(st.n))
+
+
+@pytest.mark.parametrize("slabs", [1, 3, 8])
+def test_any_number_of_slabs_gives_the_both_rows_result_and_one_buffer(slabs, monkeypatch):
+    # the slabs are numba's pool size; more slabs than threads run one after another
+    import numba
+
+    monkeypatch.setattr(numba.config, "NUMBA_NUM_THREADS", slabs)
+    a = breaking_block(1200)
+    b = a.copy()
+    sa = Simulation(a, backend="numba", monitor_every=0)
+    sb = Simulation(b, backend="numba", monitor_every=0)
+    sb.backend.once = False
+    assert sa.backend.slabs == slabs
+    ncross = int(sa.backend.cross[0][-1])
+    assert (ncross > 0) == (slabs > 1)
+    # one row per element plus one per crossing contact, whatever the slab count
+    assert sa.backend.buf.shape == (a.n + max(1, ncross), 6)
+    sa.run(200)
+    sb.run(200)
+    assert sa.crack_log().size > 20
+    assert np.array_equal(np.sort(sa.crack_log(), order=["i", "j"]),
+                          np.sort(sb.crack_log(), order=["i", "j"]))
+    assert np.abs(a.v - b.v).max() < 1e-9 * np.abs(b.v).max()
+    assert np.abs(a.fs - b.fs).max() < 1e-9 * np.abs(b.fs).max()
+    assert not sa.backend.buf.any()  # every row emptied by the finish pass
