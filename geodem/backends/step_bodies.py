@@ -507,7 +507,7 @@ def finish_body(i, v, a, dx, free, fload, m, eta, buf, inc_start,
                 q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, ext):
     # the element's spill rows (the posts from earlier slabs, in owner order), then its own
     # row (its slab's posts and its own contacts), each emptied for the next step. With up
-    # to two slabs this is, bit for bit, the order of the per-thread buffers this replaced
+    # to two slabs this is, bit for bit, the order of the one-buffer-per-thread sums before
     # (the earlier slab's sum first)
     f0 = 0.0
     f1 = 0.0

@@ -916,39 +916,37 @@ def owner_tables(nbr: np.ndarray):
 
 @njit(cache=True)
 def _cross_tables(nbr, ostart, nslab, cstart, inc_start):
-    # the owned contacts whose partner is in a later slab, counted in (owner, column) order;
-    # their spill rows are grouped by partner, in that order within a partner (a stable
-    # counting sort): the finish pass then reads each element's spill rows as one run
+    # the owned contacts whose partner is in a later slab, in (owner, column) order: the
+    # first sweep counts them per owner and per partner, the second gives each its spill
+    # row, grouped by partner in that order (a stable counting sort), so that the finish
+    # pass reads each element's spill rows as one run
     n, w = nbr.shape
-    c = 0
-    for t in range(nslab):
-        hi = (t + 1) * n // nslab
-        for i in range(t * n // nslab, hi):
-            cstart[i] = c
-            for k in range(ostart[i], w):
-                j = nbr[i, k]
-                if j < 0:
-                    break
-                if j >= hi:
-                    inc_start[j + 1] += 1
-                    c += 1
-    cstart[n] = c
-    for j in range(n):
-        inc_start[j + 1] += inc_start[j]
-    spill = np.zeros(c + 1, np.int32)  # one spare entry
-    fill = inc_start[:-1].copy()
-    c = 0
-    for t in range(nslab):
-        hi = (t + 1) * n // nslab
-        for i in range(t * n // nslab, hi):
-            for k in range(ostart[i], w):
-                j = nbr[i, k]
-                if j < 0:
-                    break
-                if j >= hi:
-                    spill[c] = fill[j]
-                    fill[j] += 1
-                    c += 1
+    spill = np.zeros(1, np.int32)
+    fill = np.zeros(0, np.int32)
+    for sweep in range(2):
+        c = 0
+        for t in range(nslab):
+            hi = (t + 1) * n // nslab
+            for i in range(t * n // nslab, hi):
+                if sweep == 0:
+                    cstart[i] = c
+                for k in range(ostart[i], w):
+                    j = nbr[i, k]
+                    if j < 0:
+                        break
+                    if j >= hi:
+                        if sweep == 0:
+                            inc_start[j + 1] += 1
+                        else:
+                            spill[c] = fill[j]
+                            fill[j] += 1
+                        c += 1
+        if sweep == 0:
+            cstart[n] = c
+            for j in range(n):
+                inc_start[j + 1] += inc_start[j]
+            spill = np.zeros(c + 1, np.int32)  # one spare entry
+            fill = inc_start[:-1].copy()
     return spill
 
 

@@ -97,7 +97,7 @@ def test_each_contact_once_matches_both_rows_and_leaves_the_state_complete(rotat
     for key in ("kinetic", "elastic", "heat_break_normal", "heat_break_shear", "heat_friction",
                 "heat_viscous", "total", "closure_error"):
         assert ea[key] == pytest.approx(eb[key], rel=1e-8, abs=1e-12 * abs(eb["total"])), key
-    assert not sa.backend.buf.any()  # the threads' buffers are emptied every step
+    assert not sa.backend.buf.any()  # the posts' buffer is emptied every step
 
 
 def test_rows_changed_by_a_rebuild_get_new_tables():
