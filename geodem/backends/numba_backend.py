@@ -108,7 +108,8 @@ class NumbaBackend(HostBackend):
         return tuple(ph[k] if getattr(s, k) is None else getattr(s, k) for k in names)
 
     def _rows_changed(self):
-        """(Re)build the owner tables, the slabs' crossing tables and the posts' buffer from the state's rows."""
+        """(Re)build the owner tables, the slabs' crossing tables and the posts' buffer from
+        the state's rows."""
         s = self.s
         self.rows = s.nbr
         self.tables = owner_tables(s.nbr)

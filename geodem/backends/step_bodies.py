@@ -45,6 +45,8 @@ DIM = 3  # placeholders: bound per compiled variant
 ROT = False
 DAMP = False
 NR = 3
+# the passes cpu_steps calls: jitted under these names in the generated module
+move = force_owner = finish = None
 
 
 def dof_free(v, a, f, m, eta, dt, ddx):
