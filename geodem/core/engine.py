@@ -269,11 +269,14 @@ class Simulation:
                 self._raise_nonfinite()
             rebuild, interval = neighbors.check_plan(disp, s.dt * speed, s.skin, self.check_every)
             if rebuild:
-                b.pull(("x", "v", "x_ref") + s.row_array_names())
+                # the rebuild reads x and the rows and writes the rows and x_ref: only those
+                # travel (a device backend's other arrays are newer than the host's copies)
+                rows = ("x_ref",) + s.row_array_names()
+                b.pull(("x",) + rows)
                 self._harvest_host()
                 neighbors.build_rows(s)
                 self.rebuilds += 1
-                b.push()
+                b.push(rows)
             else:
                 self._harvest()
         else:
