@@ -101,7 +101,7 @@ def _guard(fn):
                     sys.stderr.write(line + "\n")
                 sys.stderr.flush()
                 raise typer.Exit(USER_ERROR) from None
-            msg = escape(str(exc))
+            msg = str(exc)  # _fail escapes the markup once
             if not user:
                 msg = f"{type(exc).__name__}: {msg}"
                 if not _OPTS["verbose"]:

@@ -88,6 +88,20 @@ def test_bench_unknown_backend_exit_2():
     assert "Traceback" not in res.output
 
 
+def test_error_text_keeps_its_brackets():
+    """A user error naming an install extra prints it as written (the markup escaped once)."""
+    from geodem.backends import BACKENDS, _load_all
+
+    _load_all()
+    if BACKENDS["cupy"].is_available():
+        pytest.skip("a usable GPU: the cupy backend is no error here")
+    res = invoke("bench", "--sizes", "2000", "--backends", "cupy")
+    assert res.exit_code == 2
+    msg = flat(res.stderr)
+    assert "backend 'cupy' is not usable here" in msg
+    assert "geodem[gpu]" in msg and "\\[" not in msg
+
+
 def test_python_dash_m():
     res = subprocess.run([sys.executable, "-m", "geodem", "--version"], capture_output=True,
                          text=True, timeout=60, cwd=ROOT)
