@@ -21,6 +21,15 @@ from geodem.core.state import BROKEN_BASE
 THREADS = 128
 DEVICE_ARRAYS = ("x", "v", "a", "dx", "x_ref", "free", "fload", "props", "m", "eta", "nbr",
                  "cstate", "fs", "brate", "q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext")
+# what the kernels write: the rest of the device arrays changes only by a push from the host
+STEPPED = ("x", "v", "a", "dx", "cstate", "fs", "q_visc", "q_break_n", "q_break_s", "q_fric",
+           "w_ext")
+STEPPED_OPTIONS = ("w", "wa", "dth", "fdash", "mr")  # rotation, contact damping
+
+
+def stepped_arrays(state) -> tuple:
+    """The device arrays the step kernels change, for ``state``'s options."""
+    return STEPPED + tuple(k for k in STEPPED_OPTIONS if getattr(state, k) is not None)
 
 
 def simulated() -> bool:
@@ -128,7 +137,10 @@ class CupyBackend:
             getattr(self.s, k)[...] = host
 
     def settle(self):
-        """End of a run: nothing to do (the host copy is refreshed by ``pull``)."""
+        """End of ``Simulation.run``: leave the state complete for whoever reads it next, as
+        every backend does (callers read ``sim.state`` after a run): the arrays the kernels
+        changed come back, one copy per ``run`` call, never per step."""
+        self.pull(stepped_arrays(self.s))
 
     def scratch_nbytes(self) -> int:
         return 0

@@ -229,6 +229,8 @@ class Simulation:
         """Couple a :class:`geodem.fields.CoupledField`; it advances every ``field.every``
         steps by that span of time, sub-stepping on its own stable step."""
         field.attach(self)
+        # attaching may set up what the field writes (loads, damping): the device must see it
+        self.backend.push(tuple(field.writes))
         self.fields.append(field)
         self._field_every = math.gcd(*[f.every for f in self.fields])
 

@@ -426,7 +426,7 @@ class ThermalField(CoupledField):
         # same positions (dx = 0 and dt = 0: no velocity, spring or heat changes), so the next
         # velocity-Verlet step starts from F(x, R_new) (without it the books drift by ~1e-2)
         st.dx.fill(0.0)
-        b.push(("dx",))
+        b.push(("dx", "w_ext"))  # the booked work too: a device must see it before the pass
         b.force(0.0, broken_code(st.step, 1), broken_code(st.step, 2))
         return float(self._ebuf.sum())
 

@@ -26,6 +26,16 @@ def workflow(tmp_path, steps, model=None, **extra):
     return p
 
 
+def example_workflow(tmp_path, kind):
+    """The workflow file of step ``kind``'s example: 10 steps, the example, 10 steps, on the
+    step's example model or else a loaded lattice block (a load keeps energy flowing: the
+    closure error of a model at rest is round-off / round-off)."""
+    cls = STEPS[kind]
+    pre = [] if cls.example_model else [{"kind": "load", "group": "top", "force": [0.0, -1.0]}]
+    return workflow(tmp_path, pre + [{"kind": "run", "nsteps": 10}, dict(cls.example),
+                                     {"kind": "run", "nsteps": 10}], model=cls.example_model)
+
+
 @pytest.mark.parametrize("kind", list(STEPS))
 def test_every_step_kind_runs(kind, tmp_path):
     cls = STEPS[kind]
@@ -33,10 +43,7 @@ def test_every_step_kind_runs(kind, tmp_path):
     for name, f in cls.model_fields.items():  # every field documented
         assert f.description, f"{kind}.{name} has no description"
     ex = dict(cls.example)
-    # a load keeps energy flowing (the closure error of a model at rest is round-off / round-off)
-    pre = [] if cls.example_model else [{"kind": "load", "group": "top", "force": [0.0, -1.0]}]
-    p = workflow(tmp_path, pre + [{"kind": "run", "nsteps": 10}, ex,
-                                  {"kind": "run", "nsteps": 10}], model=cls.example_model)
+    p = example_workflow(tmp_path, kind)
     code, s = run_workflow(p, tmp_path / "out", echo=False, progress=False)
     assert code == 0 and s["status"] == "ok", s.get("error")
     if cls.example_model is None:

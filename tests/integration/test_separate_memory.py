@@ -1,0 +1,27 @@
+"""Host and device in step: every step kind's example, run with the numba kernels on arrays
+kept apart from the state as the GPU backend keeps them (tests/separate_memory.py), is the
+plain numba run bit for bit, and no code reads or writes a state array behind the backend's
+``pull`` / ``push``. The CPU backends share their arrays with the state, so only this (or a
+GPU) shows such a slip: before session 12 the cupy backend ended ``Simulation.run`` without
+bringing the state back, and the packing of every specimen read stale velocities."""
+import pytest
+
+import geodem.backends as backends
+from geodem.workflow import STEPS, run_workflow
+from tests.integration.test_workflow_steps import example_workflow
+from tests.separate_memory import SeparateMemory
+
+backends._load_all()
+
+
+@pytest.mark.parametrize("kind", list(STEPS))
+def test_step_kind_keeps_host_and_device_in_step(kind, tmp_path, monkeypatch):
+    monkeypatch.setenv("GEODEM_BACKEND", "numba")
+    p = example_workflow(tmp_path, kind)
+    code, plain = run_workflow(p, tmp_path / "shared", echo=False, progress=False)
+    assert code == 0, plain.get("error")
+    monkeypatch.setitem(backends.BACKENDS, "numba", SeparateMemory)
+    code, apart = run_workflow(p, tmp_path / "apart", echo=False, progress=False)
+    assert code == 0, apart.get("error")
+    assert apart["state_sha256"] == plain["state_sha256"]
+    assert apart["energy_closure_rel_error"] == plain["energy_closure_rel_error"]
