@@ -266,6 +266,10 @@ def test_isotropic_breakdown_within_30_percent_of_direct_tension_hubbert_willis(
 @pytest.mark.slow
 @pytest.mark.validation
 def test_confined_fracture_follows_sigma_H_and_breaks_down_near_hubbert_willis(confined):
+    # the breakdown target holds with the calibration T only: at a 2 d_mean hole the first
+    # ring feels the confinement at about twice the weight Hubbert-Willis gives it, and the
+    # nominal Brazilian T (6-11 x the plate's direct tension) makes up for it
+    # (docs/hydraulic_fracturing.md, "Why the confined case matches Hubbert-Willis")
     assert confined["sigma_H_angle_deg"] == 0.0
     assert axis_misfit_deg(confined["dominant_crack_angle_deg"],
                            confined["sigma_H_angle_deg"]) < 15.0
