@@ -33,12 +33,15 @@ class StaleAccess(AssertionError):
 
 
 class _Stale:
-    """Stands in for a state array the kernels changed since the host last pulled it."""
+    """Stands in for a state array the kernels changed since the host last pulled it (its
+    shape and dtype stay readable: they do not go stale)."""
 
-    __slots__ = ("_name",)
+    __slots__ = ("_name", "shape", "dtype", "ndim", "size")
 
-    def __init__(self, name):
+    def __init__(self, name, like):
         object.__setattr__(self, "_name", name)
+        for k in ("shape", "dtype", "ndim", "size"):
+            object.__setattr__(self, k, getattr(like, k))
 
     def _fail(self, *args, **kwargs):
         name = object.__getattribute__(self, "_name")
@@ -51,8 +54,11 @@ class _Stale:
     def __setattr__(self, name, value):
         self._fail()
 
+    def __len__(self):
+        return self.shape[0]
 
-for _m in ("__getitem__", "__setitem__", "__array__", "__len__", "__iter__", "__contains__",
+
+for _m in ("__getitem__", "__setitem__", "__array__", "__iter__", "__contains__",
            "__add__", "__sub__", "__mul__", "__truediv__", "__radd__", "__rsub__", "__rmul__",
            "__rtruediv__", "__iadd__", "__isub__", "__imul__", "__neg__", "__abs__", "__pow__",
            "__lt__", "__gt__", "__le__", "__ge__", "__eq__", "__ne__", "__bool__", "__float__",
@@ -139,7 +145,7 @@ class SeparateMemory(NumbaBackend):
         for k, old in before.items():
             if k not in self.hidden and not np.array_equal(self.dev[k], old, equal_nan=True):
                 self.hidden[k] = getattr(self.real, k)
-                setattr(self.real, k, _Stale(k))
+                setattr(self.real, k, _Stale(k, self.hidden[k]))
         return out
 
     def move(self, dt):

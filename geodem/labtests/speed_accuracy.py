@@ -100,6 +100,7 @@ def two_balls(dt_fraction, resolution, backend, damping) -> Point:
         def rec(s):
             k = s.state.step - 1
             ts[k] = s.state.time
+            s.backend.pull(("x",))  # a device backend: the positions of this step
             us[k] = s.state.x[1, 0] - x_rest
 
         sim.run(steps, callback=rec, every=1)
@@ -132,7 +133,9 @@ def wave_speed(dt_fraction, resolution, backend, damping) -> Point:
 
         def drive(s):
             t = s.state.time
+            s.backend.pull(("v",))  # a device backend: this step's velocities, and the drive's
             s.state.v[0, 0] = vmax * (0.5 - 0.5 * math.cos(math.pi * min(t / tau, 1.0)))
+            s.backend.push(("v",))
             for i in stations:
                 v = s.state.v[i, 0]
                 if i not in cross and v >= 0.5 * vmax:

@@ -25,3 +25,27 @@ def test_step_kind_keeps_host_and_device_in_step(kind, tmp_path, monkeypatch):
     assert code == 0, apart.get("error")
     assert apart["state_sha256"] == plain["state_sha256"]
     assert apart["energy_closure_rel_error"] == plain["energy_closure_rel_error"]
+
+
+def test_speed_accuracy_study_keeps_host_and_device_in_step(tmp_path, monkeypatch):
+    """The study's cases step the engine themselves and read (TwoBalls) or drive (the chain's
+    first element) the state from a callback every step."""
+    import csv
+
+    from typer.testing import CliRunner
+
+    from geodem.cli import app
+
+    def errors(out):
+        res = CliRunner().invoke(app, ["study", "speed-accuracy", "--quick", "--backend",
+                                       "numba", "--cases", "two_balls,wave-speed", "-o",
+                                       str(out)])
+        assert res.exit_code == 0, res.output
+        with open(out / "speed_accuracy.csv") as fh:
+            rows = list(csv.DictReader(fh))
+        assert all(r["status"] == "ok" for r in rows), [r["status"] for r in rows]
+        return [(r["case"], r["dt_fraction"], r["resolution"], r["error"]) for r in rows]
+
+    plain = errors(tmp_path / "shared")
+    monkeypatch.setitem(backends.BACKENDS, "numba", SeparateMemory)
+    assert errors(tmp_path / "apart") == plain
