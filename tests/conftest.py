@@ -1,7 +1,20 @@
+import os
+
 import numpy as np
 import pytest
 
 from geodem.build.lattice import bonded_state, fcc_lattice, lattice_shape, triangular_lattice
+
+
+def pytest_configure(config):
+    # GEODEM_TEST_SEPARATE_MEMORY=1: every test's numba backend keeps its arrays apart from
+    # the state, as the GPU does, and any unsynchronised access fails (tests/separate_memory.py)
+    if os.environ.get("GEODEM_TEST_SEPARATE_MEMORY") == "1":
+        import geodem.backends as backends
+        from tests.separate_memory import SeparateMemory
+
+        backends._load_all()
+        backends.BACKENDS["numba"] = SeparateMemory
 
 
 def make_specimen(n=300, dim=3, seed=1, xb=5e-4, fs0=60.0, mu=0.4, vscale=1.0):

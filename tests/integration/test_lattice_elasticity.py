@@ -34,6 +34,7 @@ def interior_stress(strain, dim, backend):
     # impose the affine displacement and evaluate forces once (dt = 0 moves nothing else)
     st.dx[:] = st.x @ np.asarray(strain).T
     st.x += st.dx
+    sim.backend.push(("x", "dx"))
     sim.backend.force(0.0, 2, 3)
     sim.sync()
     valid = st.nbr >= 0
@@ -98,7 +99,9 @@ def test_chain_long_wave_speed():
 
     def drive(s):
         t = s.state.time
+        s.backend.pull(("v",))  # inside a run: this step's velocities, and the drive's
         s.state.v[0, 0] = vmax * (0.5 - 0.5 * math.cos(math.pi * min(t / tau, 1.0)))
+        s.backend.push(("v",))
         for i in stations:
             if i not in cross and s.state.v[i, 0] >= 0.5 * vmax:
                 cross[i] = t

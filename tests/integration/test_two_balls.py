@@ -14,6 +14,7 @@ def history(zeta, periods=12, backend="numba", dim=2):
     ts, us = [0.0], [st.x[1, 0] - x0]
 
     def rec(s):
+        s.backend.pull(("x",))  # inside a run: a device backend's positions of this step
         ts.append(s.state.time)
         us.append(s.state.x[1, 0] - x0)
 

@@ -118,6 +118,7 @@ def test_two_balls_matches_a_direct_engine_run(two_balls_run):
     t, u = [0.0], [st.x[1, 0] - 1.0]
 
     def rec(s):
+        s.backend.pull(("x",))  # inside a run: a device backend's positions of this step
         t.append(s.state.time)
         u.append(s.state.x[1, 0] - 1.0)
 

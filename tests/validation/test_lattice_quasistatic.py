@@ -33,8 +33,10 @@ def test_fcc_uniaxial_platen_E_nu(shape=(7, 7, 12)):
     sim = Simulation(st, backend="numba", monitor_every=0)
     t_load = 2000 * st.dt
     st.v[top, 2] = -eps * h / t_load  # compress to eps over 2000 steps
+    sim.backend.push(("v",))
     sim.run(2000)
     st.v[top, 2] = 0.0
+    sim.backend.push(("v",))
     for _ in range(40):
         ratio = sim.balance(n_across)
         if ratio < 1e-6:
