@@ -269,8 +269,31 @@ def bench_one(state, backend: str, steps: int | None = None, copy: bool = True) 
     return rec
 
 
+def _load_average():
+    try:
+        return round(os.getloadavg()[0], 2)
+    except (AttributeError, OSError):  # not on every platform
+        return None
+
+
+def _merge_repeats(recs: list[dict]) -> dict:
+    """One record from the repeated runs of a (size, backend): the run of median speed, with
+    every run's two speeds, their best and the load average before each run."""
+    speeds = [r["element_steps_per_s"] for r in recs]
+    rec = dict(recs[int(np.argsort(speeds)[(len(recs) - 1) // 2])])
+    rec["repeats"] = len(recs)
+    rec["element_steps_per_s_runs"] = speeds
+    rec["element_steps_per_s_best"] = max(speeds)
+    kernel = [r["kernel_element_steps_per_s"] for r in recs]
+    rec["kernel_element_steps_per_s"] = float(np.median(kernel))
+    rec["kernel_element_steps_per_s_runs"] = kernel
+    rec["kernel_element_steps_per_s_best"] = max(kernel)
+    rec["load_average_runs"] = [r["load_average"] for r in recs]
+    return rec
+
+
 def run_bench(sizes=DEFAULT_SIZES, backends=None, steps=None, dim=3, seed=0, progress=None,
-              numpy_max=NUMPY_MAX) -> list[dict]:
+              numpy_max=NUMPY_MAX, repeat=1) -> list[dict]:
     """Time full steps of bonded specimens of each size on each backend.
 
     Parameters
@@ -278,14 +301,19 @@ def run_bench(sizes=DEFAULT_SIZES, backends=None, steps=None, dim=3, seed=0, pro
     sizes: element counts (about; the lattice count is used), integers >= 100.
     backends: names (``numba``, ``numpy``, ``cupy``, ``auto``); default: every backend usable here.
         ``numpy`` is only run up to ``numpy_max`` elements (the reference is slow by design).
-    steps: timed steps per run; default: as many as take about 3 s (at least 3).
+    steps: timed steps per run; default: as many as take about 3 s (at least 100).
     dim: 2 or 3. seed: specimen seed.
     progress: ``callable(str)`` receiving progress and skip messages, or None.
+    repeat: runs per (size, backend), each on a fresh copy of the specimen, for a shared or
+        noisy machine: the record is then the run of median speed, with every run's speeds
+        (``element_steps_per_s_runs``, ``kernel_element_steps_per_s_runs``), their best
+        (``..._best``), the median kernel speed, ``repeats`` and ``load_average_runs``.
 
     Returns one record per (size, backend) that was run, with the keys ``backend, dim, n,
     element_steps_per_s, bytes_per_element, state_bytes_per_element, contacts_per_element, steps,
     wall_s, threads, rebuilds, kernel_element_steps_per_s, kernel_steps, bonds_broken,
-    warmup_s``.
+    warmup_s, load_average`` (the 1-minute load average before the run: another busy
+    process on the cores slows every figure).
     ``element_steps_per_s`` is ``n * steps / wall_s`` of ``Simulation.run`` (checks and neighbour
     rebuilds included); ``kernel_element_steps_per_s`` times the bare step kernels alone.
     ``bytes_per_element`` is the memory of the model per element: ``state.nbytes() / n`` (all
@@ -300,6 +328,9 @@ def run_bench(sizes=DEFAULT_SIZES, backends=None, steps=None, dim=3, seed=0, pro
         steps = int(steps)
     if dim not in (2, 3):
         raise BenchError(f"dim must be 2 or 3, got {dim!r}")
+    if isinstance(repeat, bool) or int(repeat) != repeat or not 1 <= int(repeat) <= 100:
+        raise BenchError(f"repeat must be an integer from 1 to 100, got {repeat!r}")
+    repeat = int(repeat)
     records = []
     for n in sizes:
         todo = list(names)
@@ -309,7 +340,7 @@ def run_bench(sizes=DEFAULT_SIZES, backends=None, steps=None, dim=3, seed=0, pro
                            f"design and is only benchmarked up to {numpy_max:,} elements")
         if not todo:
             continue
-        copies = 1 if len(todo) > 1 else 0
+        copies = 1 if len(todo) > 1 or repeat > 1 else 0
         need, have = estimated_memory(n, copies), available_memory()
         if have is not None and need > have:
             _say(progress, f"size n={n:,} skipped: needs about {need / 2**30:.1f} GiB "
@@ -326,17 +357,29 @@ def run_bench(sizes=DEFAULT_SIZES, backends=None, steps=None, dim=3, seed=0, pro
             continue
         _say(progress, f"  built {state.n:,} elements in {time.perf_counter() - t0:.1f} s")
         for k, b in enumerate(todo):
-            _say(progress, f"  {b}: warm-up and timing ...")
-            try:
-                # the last backend of a size steps the specimen itself (no copy)
-                rec = bench_one(state, b, steps=steps, copy=k < len(todo) - 1)
-            except MemoryError:
-                gc.collect()
-                _say(progress, f"  {b} skipped at n={n:,}: out of memory")
-                continue
-            _say(progress, f"  {b}: {rec['element_steps_per_s']:.3g} element-steps/s "
-                           f"({rec['steps']} steps in {rec['wall_s']:.2f} s)")
-            records.append(rec)
+            runs = []
+            for rep in range(repeat):
+                tag = f" (run {rep + 1} of {repeat})" if repeat > 1 else ""
+                _say(progress, f"  {b}: warm-up and timing{tag} ...")
+                load = _load_average()
+                try:
+                    # the last run of a size steps the specimen itself (no copy)
+                    last = k == len(todo) - 1 and rep == repeat - 1
+                    rec = bench_one(state, b, steps=steps, copy=not last)
+                except MemoryError:
+                    gc.collect()
+                    _say(progress, f"  {b} skipped at n={n:,}: out of memory")
+                    break
+                rec["load_average"] = load
+                _say(progress, f"  {b}: {rec['element_steps_per_s']:.3g} element-steps/s "
+                               f"({rec['steps']} steps in {rec['wall_s']:.2f} s)")
+                runs.append(rec)
+            if runs and repeat > 1:
+                if len(runs) < repeat:
+                    _say(progress, f"  {b}: only {len(runs)} of {repeat} runs at n={n:,}")
+                records.append(_merge_repeats(runs))
+            elif runs:
+                records.append(runs[0])
         del state
         gc.collect()
     return records

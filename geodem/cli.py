@@ -359,6 +359,11 @@ def bench(
     dim: Annotated[int, typer.Option("--dim", min=2, max=3, help="Dimension (2 or 3).")] = 3,
     numpy_max: Annotated[int, typer.Option(
         "--numpy-max", min=1, help="Largest size the slow NumPy reference is run at.")] = 100_000,
+    repeat: Annotated[int, typer.Option(
+        "--repeat", min=1, max=100,
+        help="Runs per size and backend, each on a fresh copy: the figures are then the "
+             "median run's, with every run's and the best in the JSON (for a shared or noisy "
+             "machine).")] = 1,
     as_json: Annotated[bool, typer.Option(
         "--json", help="Print only a JSON list of records on stdout (progress goes to stderr).")]
         = False,
@@ -372,7 +377,7 @@ def bench(
         err.print(msg, highlight=False, markup=False)
 
     records = run_bench(sizes=sizes or DEFAULT_SIZES, backends=backends, steps=steps, dim=dim,
-                        progress=progress, numpy_max=numpy_max)
+                        progress=progress, numpy_max=numpy_max, repeat=repeat)
     if as_json:
         sys.stdout.write(json.dumps(records, indent=2) + "\n")
         return
@@ -381,12 +386,21 @@ def bench(
         con = Console(width=120)
     t = Table(title=f"geodem bench ({dim}-D bonded specimen; {_cpu_model()}, "
                     f"{os.cpu_count()} cpus)", title_justify="left")
-    for col in ("backend", "n", "el-steps/s", "kernels", "B/el", "contacts", "steps", "wall s",
-                "threads", "rebuilds"):
+    cols = ["backend", "n", "el-steps/s", "kernels", "B/el", "contacts", "steps", "wall s",
+            "threads", "rebuilds"]
+    if repeat > 1:
+        cols[2:4] = ["el-steps/s (best)", "kernels (best)"]
+    for col in cols:
         t.add_column(col, justify="left" if col == "backend" else "right", no_wrap=True)
+
+    def speeds(r, key):
+        if repeat == 1 or f"{key}_runs" not in r:
+            return f"{r[key]:.3g}"
+        return f"{r[key]:.3g} ({r[f'{key}_best']:.3g})"
+
     for r in records:
-        t.add_row(r["backend"], f"{r['n']:,}", f"{r['element_steps_per_s']:.3g}",
-                  f"{r['kernel_element_steps_per_s']:.3g}",
+        t.add_row(r["backend"], f"{r['n']:,}", speeds(r, "element_steps_per_s"),
+                  speeds(r, "kernel_element_steps_per_s"),
                   f"{r['bytes_per_element']:.0f}", f"{r['contacts_per_element']:.1f}",
                   str(r["steps"]), f"{r['wall_s']:.2f}",
                   "-" if r["threads"] is None else str(r["threads"]),
@@ -394,7 +408,10 @@ def bench(
     con.print(t)
     con.print("el-steps/s: element-steps per second of Simulation.run (checks and neighbour "
               "rebuilds included); kernels: the bare move + force step; B/el: bytes per "
-              "element (state and the backend's buffers); contacts: mean row entries per element", highlight=False)
+              "element (state and the backend's buffers); contacts: mean row entries per element"
+              + (f"; with --repeat: the median of {repeat} runs, the best in brackets (every "
+                 "run in --json)" if repeat > 1 else ""),
+              highlight=False)
     if not records:
         con.print("no run was made (see the messages above)")
 

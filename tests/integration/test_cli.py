@@ -54,6 +54,49 @@ def test_bench_json():
     assert r["bonds_broken"] == 0
 
 
+def test_bench_repeat_reports_every_run_and_the_median_one():
+    res = invoke("bench", "--sizes", "2000", "--backends", "numba", "--steps", "5",
+                 "--repeat", "3", "--json")
+    assert res.exit_code == 0, res.output
+    (r,) = json.loads(res.stdout)
+    assert r["repeats"] == 3 and r["steps"] == 5
+    runs = r["element_steps_per_s_runs"]
+    assert len(runs) == 3 and len(r["kernel_element_steps_per_s_runs"]) == 3
+    assert r["element_steps_per_s"] == sorted(runs)[1]  # the median run's record
+    assert r["element_steps_per_s_best"] == max(runs)
+    assert r["kernel_element_steps_per_s"] == sorted(r["kernel_element_steps_per_s_runs"])[1]
+    assert len(r["load_average_runs"]) == 3
+    # every run stepped its own copy of the same specimen
+    assert r["bonds_broken"] == 0 and r["rebuilds"] is not None
+    assert flat(res.stderr).count("run 3 of 3") == 1
+
+
+def test_bench_merge_repeats_picks_the_median_run():
+    from geodem.bench import _merge_repeats
+
+    recs = [{"element_steps_per_s": v, "kernel_element_steps_per_s": k, "load_average": l,
+             "wall_s": w} for v, k, l, w in ((3.0, 9.0, 0.5, 1.0), (1.0, 7.0, 1.5, 3.0),
+                                             (2.0, 8.0, 1.0, 2.0), (5.0, 4.0, 0.1, 0.5))]
+    r = _merge_repeats(recs)
+    # even count: the lower of the two middle runs (speeds 2 and 3 -> 2), its own wall time
+    assert r["element_steps_per_s"] == 2.0 and r["wall_s"] == 2.0
+    assert r["element_steps_per_s_runs"] == [3.0, 1.0, 2.0, 5.0]
+    assert r["element_steps_per_s_best"] == 5.0
+    assert r["kernel_element_steps_per_s"] == 7.5  # median of 9, 7, 8, 4
+    assert r["kernel_element_steps_per_s_best"] == 9.0
+    assert r["load_average_runs"] == [0.5, 1.5, 1.0, 0.1] and r["repeats"] == 4
+
+
+def test_bench_bad_repeat():
+    import geodem.bench
+
+    with pytest.raises(geodem.bench.BenchError, match="repeat must be an integer from 1 to 100"):
+        geodem.bench.run_bench(sizes=[2000], backends=["numba"], repeat=0)
+    res = invoke("bench", "--sizes", "2000", "--repeat", "0")
+    assert res.exit_code == 2
+    assert "--repeat" in flat(res.output)
+
+
 def test_bench_numpy_limited_and_memory_skip(monkeypatch):
     res = invoke("bench", "--sizes", "2000", "--backends", "numba,numpy", "--steps", "3",
                  "--numpy-max", "1000", "--json")
