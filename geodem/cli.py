@@ -68,7 +68,9 @@ def _user_error_types():
     from geodem.materials_library import MaterialError
     from geodem.workflow.errors import WorkflowError
 
-    return (BackendError, BenchError, WorkflowError, MaterialError, GeometryError)
+    # typer.BadParameter: an option checked inside a command's body
+    return (BackendError, BenchError, WorkflowError, MaterialError, GeometryError,
+            typer.BadParameter)
 
 
 def _fail(msg: str, code: int) -> None:
@@ -378,6 +380,10 @@ def bench(
 
     records = run_bench(sizes=sizes or DEFAULT_SIZES, backends=backends, steps=steps, dim=dim,
                         progress=progress, numpy_max=numpy_max, repeat=repeat)
+    if not records:
+        # every size was skipped (memory, or the numpy limit): nothing was measured
+        _fail("no run was made (see the messages above): choose --sizes this machine can "
+              "hold, or raise --numpy-max", USER_ERROR)
     if as_json:
         sys.stdout.write(json.dumps(records, indent=2) + "\n")
         return
@@ -412,8 +418,6 @@ def bench(
               + (f"; with --repeat: the median of {repeat} runs, the best in brackets (every "
                  "run in --json)" if repeat > 1 else ""),
               highlight=False)
-    if not records:
-        con.print("no run was made (see the messages above)")
 
 
 # ----------------------------------------------------------------------------- workflows
@@ -502,12 +506,16 @@ def _print_run_summary(con, s: dict, out: str) -> None:
             ("energy closure error", f"{s['energy_closure_rel_error']:.2e}")]
     for key in ("period_rel_error", "decay_rel_error"):
         if key in s:
-            rows.append((key.replace("_", " "), f"{s[key]:.2e}"))
+            v = s[key]
+            rows.append((key.replace("_", " "),
+                         f"{v:.2e}" if isinstance(v, (int, float)) else str(v)))
     for k, v in rows:
         t.add_row(escape(k), escape(v))
     con.print(t)
     if s.get("error"):
         con.print(f"error: {escape(s['error'])}", highlight=False)
+    for w in s.get("warnings") or []:
+        con.print(f"warning: {escape(str(w))}", highlight=False)
     for name, note in (s.get("plots") or {}).items():
         if note != name:
             con.print(f"{escape(name)}: {escape(note)}", highlight=False)
@@ -553,6 +561,8 @@ def calibrate_cmd(
     from geodem.labtests.calibrate import CalibrationSpec, calibrate, save_calibration
     from geodem.materials_library import load_material, material_path
 
+    if prefer not in ("Cu", "Tu"):
+        _fail(f"--prefer {prefer!r}: allowed: Cu or Tu", USER_ERROR)
     mat = load_material(material)
     path = material_path(material)
     o = Path(out)
@@ -685,6 +695,12 @@ def study_cmd(
     f = _float_list(fractions, "--dt-fractions")
     if any(v > 0.2 for v in f):
         _fail("--dt-fractions: allowed 0 < fraction <= 0.2 (simulation.dt_fraction)", USER_ERROR)
+    from pathlib import Path
+
+    o = Path(out)
+    if o.exists() and (not o.is_dir() or (any(o.iterdir()) and not (o / "study.json").exists())):
+        _fail(f"-o {out}: exists and is not an empty folder or a previous UCS study (no "
+              f"study.json); choose another -o", USER_ERROR)
     con = _out()
 
     def report(p):
@@ -705,6 +721,8 @@ def study_cmd(
     else:
         con.print(f"no point within {tolerance:.0%}", highlight=False)
     con.print(f"wrote study.json, speed_accuracy.png to {out}", highlight=False)
+    if not any("E_rel_error" in p for p in rec["points"]):
+        _fail("no point of the study gave a result (see the errors above)", FAILURE)
 
 
 @app.command("sweep", help=(
@@ -870,8 +888,12 @@ def schema_cmd(
 
     text = json.dumps(json_schema(), indent=2) + "\n"
     if output:
-        with open(output, "w") as fh:
-            fh.write(text)
+        try:
+            with open(output, "w") as fh:
+                fh.write(text)
+        except OSError as exc:
+            _fail(f"-o {output}: cannot write the schema there ({exc.strerror or exc}); "
+                  f"allowed: a file path in a folder that exists and can be written", 2)
     else:
         sys.stdout.write(text)
 

@@ -39,13 +39,21 @@ def validate_state(state) -> None:
     n = state.n
     if n == 0:
         raise ValueError("the model has no elements")
-    for name in ("x", "v"):
+    for name in ("x", "v", "fload"):
         arr = getattr(state, name)
         bad = ~np.isfinite(arr).all(axis=1)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise ValueError(f"{name} of element {i} is not finite ({arr[i]}); "
                              f"all {name} must be finite numbers")
+    g = np.asarray(state.gravity, dtype=np.float64)
+    if not np.isfinite(g).all():
+        raise ValueError(f"gravity is not finite ({g}); allowed: finite numbers [m/s^2]")
+    bad = ~((state.free == 0.0) | (state.free == 1.0)).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"free of element {i} is {state.free[i]}; allowed: 1.0 (a free degree "
+                         f"of freedom) or 0.0 (fixed or prescribed)")
     checks = (("r", 0.0, False), ("m", 0.0, False), ("kn", 0.0, False), ("ks", 0.0, True),
               ("xb", 0.0, True), ("fs0", 0.0, True), ("mu", 0.0, True), ("eta", 0.0, True),
               ("mu_r", 0.0, True))
@@ -81,6 +89,12 @@ def validate_state(state) -> None:
                 a, b = idx[pairs[np.argmax(deep), 0]], idx[pairs[np.argmax(deep), 1]]
                 raise ValueError(f"fixed elements {a} and {b} overlap by more than half a radius; "
                                  "fixed elements may touch but not interpenetrate")
+
+
+def _check_count(name, value, lo) -> None:
+    """ValueError unless ``value`` is an integer >= ``lo`` (a count of steps)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
+        raise ValueError(f"{name} must be an integer >= {lo}, got {value!r}")
 
 
 def _check_initial_overlaps(state, limit: float) -> None:
@@ -149,6 +163,12 @@ class Simulation:
     def __init__(self, state, backend=None, dt=None, dt_fraction=timestep.DEFAULT_FRACTION,
                  check_every=10, overlap_limit=0.5, monitor_every=1000,
                  allow_unstable_dt=False):
+        _check_count("check_every", check_every, 1)
+        _check_count("monitor_every", monitor_every, 0)
+        if isinstance(overlap_limit, bool) or not isinstance(overlap_limit, (int, float)) \
+                or not 0.0 < overlap_limit <= 1.0:
+            raise ValueError(f"overlap_limit must be a number with 0 < overlap_limit <= 1 (a "
+                             f"fraction of the smaller radius), got {overlap_limit!r}")
         validate_state(state)
         self.state = state
         if dt is None:
@@ -183,6 +203,19 @@ class Simulation:
             self.backend.attach(state)
         self._harvest()
         self.reset_energy()
+        self._plan_first_check()
+
+    def _plan_first_check(self):
+        # a model that starts with fast elements is checked as soon as the skin asks (the
+        # regular schedule would first look after check_every steps, missing contacts and
+        # overlaps meanwhile); one that starts at rest keeps the regular schedule
+        s = self.state
+        if s.skin > 0.0 and s.n:
+            disp, speed = self.backend.max_disp_speed()
+            if math.isfinite(disp) and math.isfinite(speed):
+                rebuild, interval = neighbors.check_plan(disp, s.dt * speed, s.skin,
+                                                         self.check_every)
+                self._next_check = min(self._next_check, s.step + (1 if rebuild else interval))
 
     # ------------------------------------------------------------------ stepping
     def run(self, nsteps: int, callback=None, every: int = 0):
@@ -191,6 +224,9 @@ class Simulation:
         dt = s.dt
         every_field = self._field_every
         stretch = getattr(b, "steps", None) if self.stretches else None
+        if isinstance(nsteps, float) and nsteps.is_integer():
+            nsteps = int(nsteps)
+        _check_count("nsteps", nsteps, 0)
         left = int(nsteps)
         while left > 0:
             # the steps up to the next event (check, field, callback) in one call where the
@@ -263,12 +299,17 @@ class Simulation:
     def _checks(self):
         s, b = self.state, self.backend
         interval = self.check_every
+        fast = False
         if s.skin > 0.0:
             # one scan answers both: a non-finite position or velocity makes it non-finite
             disp, speed = b.max_disp_speed()
             if not (math.isfinite(disp) and math.isfinite(speed)):
                 b.pull(("x", "v"))
                 self._raise_nonfinite()
+            # an element moving more than overlap_limit x the smallest radius per step can
+            # overlap a partner beyond the limit within one step: run the monitor's checks at
+            # once rather than at the next monitor (the checks then come every step)
+            fast = s.dt * speed > self.overlap_limit * self._smallest_radius()
             rebuild, interval = neighbors.check_plan(disp, s.dt * speed, s.skin, self.check_every)
             if rebuild:
                 # the rebuild reads x and the rows and writes the rows and x_ref: only those
@@ -292,6 +333,27 @@ class Simulation:
             self.check_energy()
             self.check_overlaps()
             self._next_monitor = (s.step // self.monitor_every + 1) * self.monitor_every
+        elif self.monitor_every and fast:
+            # the energy first: a diverging time step shows as energy growth, and its message
+            # names the cause (dt); a fast collision keeps the books and shows as an overlap
+            self.check_energy()
+            self.check_overlaps()
+
+    def _smallest_radius(self) -> float:
+        # radii change only through fields (thermal expansion), between rebuilds by little
+        r_min = getattr(self, "_r_min", None)
+        if r_min is None or self.rebuilds != self._r_min_at:
+            r_min = self._r_min = float(self.state.r.min())
+            self._r_min_at = self.rebuilds
+        return r_min
+
+    def check_finite(self) -> None:
+        """Raise :class:`InstabilityError` (naming the elements) if a position or velocity is
+        not finite: one scan, no copy. The runner calls it before every checkpoint, so that no
+        checkpoint ever holds a broken state."""
+        if not self.backend.all_finite():
+            self.backend.pull(("x", "v"))
+            self._raise_nonfinite()
 
     def _raise_nonfinite(self):
         s = self.state
@@ -506,6 +568,7 @@ class Simulation:
                                             "emech0": self._emech0,
                                             "check_every": self.check_every,
                                             "monitor_every": self.monitor_every,
+                                            "overlap_limit": self.overlap_limit,
                                             "next_check": self._next_check,
                                             "next_monitor": self._next_monitor,
                                             "fields": [{"kind": f.kind, "config": f.config(),
@@ -524,7 +587,7 @@ class Simulation:
         sim = cls.__new__(cls)
         sim.state = state
         sim.check_every = int(extra["check_every"])
-        sim.overlap_limit = 0.5
+        sim.overlap_limit = float(extra.get("overlap_limit", 0.5))
         sim.monitor_every = int(extra.get("monitor_every", 1000))
         sim._schedule_checks(extra.get("next_check"), extra.get("next_monitor"))
         sim.rebuilds = 0

@@ -217,11 +217,16 @@ def new_state(x, r, m, *, dim=None, width=16, kn=0.0, ks=0.0, xb=0.0, fs0=0.0, m
         raise ValueError(f"dim={dim} but positions have {d} columns")
 
     def scal(v, name):
-        return np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))).copy()
+        a = np.asarray(v, dtype=np.float64)
+        try:
+            return np.ascontiguousarray(np.broadcast_to(a, (n,))).copy()
+        except ValueError:
+            raise ValueError(f"{name} must be one number or one per element ({n} values for "
+                             f"{n} positions), got shape {a.shape}") from None
 
     props = np.zeros((n, PROPS_WIDTH))
-    for c, v in enumerate((r, kn, ks, xb, fs0, mu, mu_r, zeta_n)):
-        props[:, c] = np.broadcast_to(np.asarray(v, dtype=np.float64), (n,))
+    for c, (v, name) in enumerate(zip((r, kn, ks, xb, fs0, mu, mu_r, zeta_n), PROPS)):
+        props[:, c] = scal(v, name)
 
     z = lambda: np.zeros((n, d))  # noqa: E731
     st = State(

@@ -37,8 +37,8 @@ def ucs_study(workflow, out_dir, across=(10, 15, 20, 30, 40), fractions=(0.02, 0
 
     wf = Path(workflow)
     out = Path(out_dir)
+    E_t, Cu_t, height = _targets(wf, material)  # first: a bad workflow leaves no folder
     out.mkdir(parents=True, exist_ok=True)
-    E_t, Cu_t, height = _targets(wf, material)
     points = []
     for n in across:
         for f in fractions:

@@ -12,7 +12,8 @@
     DIR/vtk/                   .vtp frames + frames.pvd (when asked for)
 
 An existing, non-empty folder is never overwritten unless ``--overwrite`` is given (and then only
-a geodem run directory, one holding ``manifest.json``), or continued with ``--resume``.
+a geodem run directory, one holding ``manifest.json``, and only the entries the run wrote: other
+files stay), or continued with ``--resume``.
 """
 from __future__ import annotations
 
@@ -93,6 +94,7 @@ def _jsonable(o):
 class RunDir:
     def __init__(self, path):
         self.path = Path(path)
+        self.kept: list = []  # entries --overwrite left in place (prepare)
 
     def __truediv__(self, name) -> Path:
         return self.path / name
@@ -105,8 +107,11 @@ class RunDir:
         return WorkflowError(ErrorItem(str(self.path), None, "(run directory)", msg))
 
     def prepare(self, overwrite: bool, resume: bool) -> None:
-        """Create the folder, or check that it may be reused (WorkflowError, exit 2, if not)."""
+        """Create the folder, or check that it may be reused (WorkflowError, exit 2, if not).
+        ``--overwrite`` deletes only what the run wrote (:meth:`written_entries`); the names of
+        the other entries are left in ``self.kept``."""
         p = self.path
+        self.kept = []
         if overwrite and resume:
             raise self._err("--overwrite and --resume exclude each other: --resume continues the "
                             "run in this folder, --overwrite deletes it and starts again")
@@ -128,12 +133,38 @@ class RunDir:
             if not (p / MANIFEST).exists():
                 raise self._err("is not a geodem run directory (no manifest.json); refusing to "
                                 "delete its contents with --overwrite: choose another -o")
+            # only what the run wrote goes: the user's own files in the folder stay
+            ours = self.written_entries()
             for child in p.iterdir():
-                if child.is_dir() and not child.is_symlink():
+                if child.name not in ours:
+                    self.kept.append(child.name)
+                elif child.is_dir() and not child.is_symlink():
                     shutil.rmtree(child)
                 else:
                     child.unlink()
-        p.mkdir(parents=True, exist_ok=True)
+        try:
+            p.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise self._err(f"cannot create the folder: {exc.strerror or exc}; choose another "
+                            "-o") from None
+
+    def written_entries(self) -> set:
+        """Names of the folder's entries that a geodem run writes: the fixed ones, and the
+        first part of every file the run listed (summary.json ``files``, the checkpoints'
+        markers)."""
+        names = {CONFIG, MANIFEST, LOG, OUTPUT, SUMMARY, CHECKPOINTS, VTK}
+        listed = []
+        sources = [self.path / SUMMARY] + self.checkpoint_markers()
+        for f in sources:
+            try:
+                listed += list(json.loads(f.read_text()).get("files") or [])
+            except (OSError, ValueError, AttributeError, TypeError):
+                continue
+        for f in listed:
+            parts = Path(str(f)).parts
+            if parts and not Path(str(f)).is_absolute() and ".." not in parts:
+                names.add(parts[0])
+        return names
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint_markers(self) -> list[Path]:

@@ -24,6 +24,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -161,7 +162,19 @@ def _build(cfg, doc):
     from geodem.workflow.models import BuildError
 
     try:
-        built = cfg.model.build(cfg)
+        with warnings.catch_warnings(record=True) as caught:
+            # numbers of unphysical magnitude (1e308 m) overflow inside the builders: report
+            # that as the model's error below, not as NumPy warnings and a traceback
+            warnings.simplefilter("always", RuntimeWarning)
+            built = cfg.model.build(cfg)
+        for w in caught:
+            if not issubclass(w.category, RuntimeWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    except ArithmeticError as exc:
+        raise WorkflowError(doc.error(("model",), (
+            f"cannot build the model: {type(exc).__name__}: {exc}; the model's and the "
+            f"materials' numbers overflow or divide by zero: allowed: lengths, densities and "
+            f"stiffnesses of a physical magnitude"))) from None
     except BuildError as exc:
         path = exc.path if exc.path[:1] == ("materials",) else ("model",) + exc.path
         raise WorkflowError(doc.error(path, str(exc))) from None
@@ -633,6 +646,8 @@ class Runner:
         }
 
     def checkpoint(self, ctx, complete=False) -> None:
+        # a broken state stops the run here, before it can replace a good checkpoint
+        self.sim.check_finite()
         self.h5.flush()
         path = self.dir.write_checkpoint(self.sim, self._marker(ctx, complete),
                                          self.cfg.checkpoints.keep)
@@ -660,6 +675,11 @@ class Runner:
         self._rate = 0.0
         self.last_checkpoint = None
         self.dir.prepare(self.overwrite, self.resume)
+        if self.dir.kept:
+            self.console.print(
+                f"--overwrite kept {len(self.dir.kept)} entr{'y' if len(self.dir.kept) == 1 else 'ies'}"
+                f" of {self.dir.path} that the run did not write: "
+                f"{', '.join(sorted(self.dir.kept))}", highlight=False, markup=False)
         marker, npz = None, None
         if self.resume:
             marker, npz = self.dir.latest_checkpoint()

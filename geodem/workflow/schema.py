@@ -62,9 +62,11 @@ def F(default: Any = ..., *, unit: str | None = None, description: str = "", **k
 
 
 class Strict(BaseModel):
-    """Base of every workflow model: unknown keys are errors, types are strict."""
+    """Base of every workflow model: unknown keys are errors, types are strict, numbers finite
+    (``.inf`` and ``.nan`` are errors in every field)."""
 
-    model_config = ConfigDict(extra="forbid", strict=True, populate_by_name=True)
+    model_config = ConfigDict(extra="forbid", strict=True, populate_by_name=True,
+                              allow_inf_nan=False)
 
 
 Name = Annotated[str, Field(pattern=NAME_PATTERN, max_length=64)]
@@ -427,7 +429,7 @@ def workflow_model():
         """A geodem workflow: a model, its materials and an ordered list of steps."""
 
         model_config = ConfigDict(extra="forbid", strict=True, title="geodem workflow",
-                                  populate_by_name=True)
+                                  populate_by_name=True, allow_inf_nan=False)
 
     fields = dict(
         version=(Literal[SCHEMA_VERSION], F(SCHEMA_VERSION, description="Schema version")),
@@ -541,15 +543,18 @@ def allowed_text(finfo, tp, meta) -> str:
             if v is not None and not isinstance(v, bool):
                 bounds.append(f"{sym} {v:.6g}" if isinstance(v, float) else f"{sym} {v}")
         lo, hi = getattr(m, "min_length", None), getattr(m, "max_length", None)
+        unit = "characters" if tp is str else "items"
         if lo is not None and hi is not None:
-            extras.append(f"with {lo} to {hi} items" if lo != hi else f"with {lo} items")
+            extras.append(f"with {lo} to {hi} {unit}" if lo != hi else f"with {lo} {unit}")
         elif lo is not None:
-            extras.append(f"with at least {lo} item{'s' if lo != 1 else ''}")
+            extras.append(f"with at least {lo} {unit if lo != 1 else unit[:-1]}")
         elif hi is not None:
-            extras.append(f"with at most {hi} items")
+            extras.append(f"with at most {hi} {unit}")
         pat = getattr(m, "pattern", None)
         if pat == NAME_PATTERN:
             extras.append("(letters, digits and _, not starting with a digit)")
+        elif pat:
+            extras.append(f"matching the pattern {pat}")
     kind = _kind_text(tp)
     text = " ".join(p for p in (kind, " and ".join(bounds), " ".join(extras)) if p)
     extra = getattr(finfo, "json_schema_extra", None) or {}

@@ -152,3 +152,88 @@ def test_python_dash_m():
     res = subprocess.run([sys.executable, "-m", "geodem", "bench", "--sizes", "abc"],
                          capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert res.returncode == 2 and "--sizes" in res.stderr and "Traceback" not in res.stderr
+
+
+TWO_BALLS = str(ROOT / "workflows" / "two_balls.yaml")
+
+
+@pytest.mark.parametrize("setting,field", [
+    ("materials.paper.rho=.inf", "materials.paper.rho"),
+    ("materials.paper.kn=.nan", "materials.paper.kn"),
+    ("steps.oscillate.nsteps=null", None),  # with the next one: duration = inf
+])
+def test_non_finite_numbers_are_refused(setting, field):
+    args = ["validate", TWO_BALLS, "--set", setting]
+    if field is None:
+        args += ["--set", "steps.oscillate.duration=.inf"]
+        field = "steps[0].duration"
+    res = invoke(*args)
+    assert res.exit_code == 2, res.output
+    assert f"{field}: Input should be a finite number" in flat(res.output)
+    assert "Traceback" not in res.output
+
+
+def test_a_model_whose_numbers_overflow_is_a_user_error():
+    res = invoke("validate", TWO_BALLS, "--set", "model.diameter=1e308")
+    assert res.exit_code == 2, res.output
+    out = flat(res.output)
+    assert "model: cannot build the model: ZeroDivisionError" in out
+    assert "allowed: lengths, densities and stiffnesses of a physical magnitude" in out
+
+
+def test_run_into_an_impossible_folder(tmp_path):
+    (tmp_path / "afile").write_text("x")
+    res = invoke("run", TWO_BALLS, "-o", str(tmp_path / "afile" / "sub"), "--no-progress")
+    assert res.exit_code == 2, res.output
+    assert "(run directory): cannot create the folder: Not a directory" in flat(res.output)
+
+
+def test_schema_into_a_folder_is_a_user_error(tmp_path):
+    res = invoke("schema", "-o", str(tmp_path))
+    assert res.exit_code == 2, res.output
+    assert "cannot write the schema there (Is a directory)" in flat(res.output)
+
+
+def test_study_refuses_bad_lists_and_foreign_folders(tmp_path):
+    for opt, value in (("--across", "abc"), ("--across", "0"), ("--dt-fractions", "-1")):
+        res = invoke("study", "ucs", "-o", str(tmp_path / "s"), opt, value)
+        assert res.exit_code == 2, res.output
+        assert opt in flat(res.output) and "BadParameter" not in res.output
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("x")
+    res = invoke("study", "ucs", "-o", str(tmp_path / "mine"), "--across", "10")
+    assert res.exit_code == 2 and "no study.json" in flat(res.output)
+    res = invoke("study", "ucs", "-o", str(tmp_path / "new"), "--workflow",
+                 str(tmp_path / "nothere.yaml"))
+    assert res.exit_code == 2 and not (tmp_path / "new").exists()
+
+
+def test_calibrate_bad_prefer(tmp_path):
+    res = invoke("calibrate", "granite", "-o", str(tmp_path / "c"), "--prefer", "xx")
+    assert res.exit_code == 2, res.output
+    assert "--prefer 'xx': allowed: Cu or Tu" in flat(res.output)
+
+
+def test_bench_with_nothing_run_exits_2(monkeypatch):
+    import geodem.bench
+
+    monkeypatch.setattr(geodem.bench, "available_memory", lambda: 1000)
+    res = invoke("bench", "--sizes", "2000", "--backends", "numba", "--json")
+    assert res.exit_code == 2
+    assert "no run was made" in flat(res.stderr)
+
+
+def test_two_balls_too_short_to_measure_warns_and_resumes(tmp_path):
+    out = tmp_path / "tb"
+    res = invoke("run", TWO_BALLS, "-o", str(out), "--set", "steps.oscillate.nsteps=50",
+                 "--no-progress")
+    assert res.exit_code == 0, res.output
+    s = json.loads((out / "summary.json").read_text())
+    assert s["period_rel_error"] is None  # NaN in JSON: nothing was measured
+    assert any("shows 0 displacement peak(s)" in w and "at least 2.5 periods" in w
+               for w in s["warnings"])
+    assert "warning: two_balls_check" in flat(res.output)
+    res = invoke("run", TWO_BALLS, "-o", str(out), "--set", "steps.oscillate.nsteps=50",
+                 "--resume", "--no-progress")
+    assert res.exit_code == 0, res.output
+    assert "already complete" in flat(res.output)

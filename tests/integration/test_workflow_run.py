@@ -192,7 +192,11 @@ def test_overwrite(tmp_path):
     res = run(TWO_BALLS, "-o", out, "--overwrite", "--set", "steps.oscillate.nsteps=30",
               "--set", "steps.check.critical=null")
     assert res.exit_code == 0, res.output
-    assert not (out / "stale.txt").exists() and summary(out)["steps"] == 30
+    assert summary(out)["steps"] == 30
+    # the user's own file stays, and the run says so
+    assert (out / "stale.txt").read_text() == "old"
+    said = " ".join(res.output.split())
+    assert "--overwrite kept 1 entry" in said and "stale.txt" in said
 
 
 def test_dry_run(tmp_path):

@@ -135,3 +135,101 @@ def test_initial_overlap_refused_before_stepping():
     assert np.array_equal(st.x, before) and st.step == 0
     Simulation(st, backend="numba", overlap_limit=0.9)  # a looser limit accepts it
     Simulation(st, backend="numba", monitor_every=0)  # so does a relaxation without monitor
+
+
+@pytest.mark.parametrize("name,value,match", [
+    ("fload", np.nan, r"fload of element 3 is not finite"),
+    ("free", np.nan, r"free of element 3 .* allowed: 1.0 .* or 0.0"),
+    ("free", 0.5, r"free of element 3"),
+])
+def test_nonfinite_loads_and_freedoms(name, value, match):
+    st = tb.build()
+    getattr(st, name)[3, 0] = value
+    with pytest.raises(ValueError, match=match):
+        Simulation(st, backend="numba")
+
+
+def test_nonfinite_gravity():
+    st = tb.build()
+    st.gravity = np.array([0.0, np.inf, 0.0])[:st.dim]
+    with pytest.raises(ValueError, match=r"gravity is not finite"):
+        Simulation(st, backend="numba")
+
+
+@pytest.mark.parametrize("kw,match", [
+    ({"check_every": 0}, r"check_every must be an integer >= 1, got 0"),
+    ({"check_every": 2.5}, r"check_every must be an integer >= 1"),
+    ({"monitor_every": -10}, r"monitor_every must be an integer >= 0"),
+    ({"overlap_limit": float("nan")}, r"0 < overlap_limit <= 1"),
+    ({"overlap_limit": -1.0}, r"0 < overlap_limit <= 1"),
+])
+def test_engine_settings(kw, match):
+    with pytest.raises(ValueError, match=match):
+        Simulation(tb.build(), backend="numba", **kw)
+
+
+def test_run_counts_steps_in_whole_numbers():
+    sim = Simulation(tb.build(), backend="numba")
+    for bad in (2.7, -5, "3", True):
+        with pytest.raises(ValueError, match=r"nsteps must be an integer >= 0"):
+            sim.run(bad)
+    sim.run(3.0)
+    sim.run(0)
+    assert sim.state.step == 3
+
+
+def test_new_state_names_a_parameter_of_the_wrong_length():
+    with pytest.raises(ValueError, match=r"r must be one number or one per element \(3 values"):
+        new_state(np.zeros((3, 2)), [0.5, 0.5], 1.0)
+    with pytest.raises(ValueError, match=r"kn must be one number or one per element"):
+        new_state(np.zeros((3, 2)), 0.5, 1.0, kn=[1.0, 2.0])
+
+
+def _head_on(v0):
+    # three unbonded discs in a row, the first thrown at the second
+    from geodem.core import neighbors
+
+    st = new_state(np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]]), 0.5, 1.0, width=4,
+                   kn=1e6, ks=1e6, mu=0.5)
+    neighbors.build_rows(st, skin=0.1)
+    st.v[0, 0] = v0
+    return st
+
+
+def test_fast_element_overlap_is_caught_at_once():
+    # 2000 m/s moves the disc ~0.36 m per step (0.7 of its radius): the pair overlaps beyond
+    # the limit in the first step. The monitor would look only at step 1000; the fast-element
+    # check looks every step (and from the first one), so the run stops at step 1.
+    sim = Simulation(_head_on(2000.0), backend="numba", monitor_every=1000)
+    assert sim.state.dt * 2000.0 > 0.5 * 0.5
+    with pytest.raises(InstabilityError, match=r"elements 0 and 1 overlap by .* at step 1"):
+        sim.run(50)
+
+
+def test_slow_collision_is_not_stopped():
+    # the same collision at 20 m/s stays far inside the overlap limit
+    sim = Simulation(_head_on(20.0), backend="numba", monitor_every=1000)
+    sim.run(200)
+    assert sim.state.x[0, 0] < sim.state.x[1, 0]
+
+
+def test_fast_start_is_checked_before_check_every():
+    # a model at rest keeps the regular schedule; a fast one is checked as the skin asks
+    assert Simulation(_head_on(0.0), backend="numba", monitor_every=0)._next_check == 10
+    fast = Simulation(_head_on(30.0), backend="numba", monitor_every=0)
+    u = fast.state.dt * 30.0
+    assert fast._next_check == max(1, int(0.5 * 0.1 / u)) < 10
+
+
+def test_check_finite_names_the_elements():
+    sim = Simulation(tb.build(), backend="numba")
+    sim.check_finite()
+    sim.state.v[1, 0] = np.nan
+    with pytest.raises(InstabilityError, match=r"non-finite positions/velocities of elements \[1\]"):
+        sim.check_finite()
+
+
+def test_overlap_limit_survives_a_checkpoint(tmp_path):
+    sim = Simulation(tb.build(), backend="numba", overlap_limit=0.8)
+    sim.save(tmp_path / "c.npz")
+    assert Simulation.load(tmp_path / "c.npz", backend="numba").overlap_limit == 0.8

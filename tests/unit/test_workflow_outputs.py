@@ -61,13 +61,25 @@ def test_run_directory_rules(tmp_path):
         d.prepare(overwrite=False, resume=False)
     with pytest.raises(WorkflowError, match="nothing to resume"):
         d.prepare(overwrite=False, resume=True)
-    (d / "old.txt").write_text("x")
+    # --overwrite deletes what the run wrote (the fixed files, those summary.json and the
+    # checkpoint markers list), and keeps the user's own files, naming them
+    (d / "summary.json").write_text('{"files": ["plot.png", "frames/f0.npz", "../up.txt"]}')
+    (d / "plot.png").write_text("x")
+    (d / "frames").mkdir()
+    (d / "frames" / "f0.npz").write_text("x")
+    (d / "checkpoints").mkdir()
+    (d / "checkpoints" / "step_000000000010.json").write_text('{"files": ["late.csv"]}')
+    (d / "late.csv").write_text("x")
+    (d / "notes.txt").write_text("mine")
     d.prepare(overwrite=True, resume=False)
-    assert not (d / "old.txt").exists()
+    assert sorted(p.name for p in d.path.iterdir()) == ["notes.txt"]
+    assert d.kept == ["notes.txt"] and (d / "notes.txt").read_text() == "mine"
     f = tmp_path / "afile"
     f.write_text("x")
     with pytest.raises(WorkflowError, match="not a folder"):
         RunDir(f).prepare(False, False)
+    with pytest.raises(WorkflowError, match="cannot create the folder: Not a directory"):
+        RunDir(f / "sub").prepare(False, False)
 
 
 def test_summary_json_is_strict(tmp_path):
