@@ -205,8 +205,17 @@ def deposition_state(x, r, box, *, rho=2650.0, kn_per_d=None, d_wall=None, top=N
         plat = _plane_points(plo, phi, sp)
     else:
         plat = np.zeros((0, dim))
+    # a platen only a few wall elements wide gets a spacing below 0.75 d_wall (3 points over
+    # 1.4 d_wall: 0.71 d_wall), and its fixed elements would overlap by more than half a
+    # radius: such a platen gets elements of spacing / 0.85 instead (the walls' overlap)
+    r_plat = rw
+    if len(plat) > 1:
+        gaps = [np.diff(np.unique(plat[:, a])) for a in range(dim - 1)]
+        gaps = [g.min() for g in gaps if g.size]
+        if gaps and min(gaps) < 0.75 * d_wall:
+            r_plat = 0.5 * min(gaps) / 0.85
     xa = np.concatenate([x, walls, plat])
-    ra = np.concatenate([r, np.full(len(walls) + len(plat), rw)])
+    ra = np.concatenate([r, np.full(len(walls), rw), np.full(len(plat), r_plat)])
     t = None if thickness is None else thickness
     vol = element_volume(ra, dim, t) if (dim == 3 or t is not None) else \
         element_volume(ra, dim) * 2.0 * ra

@@ -97,3 +97,27 @@ def test_subset_state_copies_and_relabels():
     assert st.x[0, 0] != 99.0
     with pytest.raises(ValueError):
         subset_state(st, np.ones(3, bool))
+
+
+def test_narrow_platen_elements_do_not_interpenetrate():
+    # 5 elements across a 0.1 m box: the platen between the side walls holds 3 wall-size
+    # elements 0.71 d_wall apart, which would overlap by more than half a radius (the fixed
+    # elements' limit); they get elements of spacing / 0.85 instead, and the state is valid
+    from geodem.build.packing import deposition_state
+    from geodem.core.engine import validate_state
+    from geodem.core import groups
+
+    d = 0.02
+    x = np.array([[0.05, 0.05], [0.03, 0.1], [0.07, 0.15]])
+    r = np.full(3, 0.5 * d)
+    st = deposition_state(x, r, ([0.0, 0.0], [0.1, 0.2]))
+    validate_state(st)
+    p = groups.members(st, "platen")
+    xs = np.sort(st.x[p, 0])
+    gap = np.diff(xs).min()
+    assert gap < 0.75 * 2 * d  # the narrow case
+    assert st.r[p] == pytest.approx(0.5 * gap / 0.85)
+    assert st.r[groups.members(st, "wall")] == pytest.approx(d)  # walls keep d_wall = 2 d_mean
+    # a wide platen keeps the wall element size
+    wide = deposition_state(x * 4, r, ([0.0, 0.0], [0.4, 0.8]))
+    assert wide.r[groups.members(wide, "platen")] == pytest.approx(d)
