@@ -893,7 +893,7 @@ def schema_cmd(
                 fh.write(text)
         except OSError as exc:
             _fail(f"-o {output}: cannot write the schema there ({exc.strerror or exc}); "
-                  f"allowed: a file path in a folder that exists and can be written", 2)
+                  f"allowed: a file path in a folder that exists and can be written", USER_ERROR)
     else:
         sys.stdout.write(text)
 

@@ -163,13 +163,13 @@ def _build(cfg, doc):
 
     try:
         with warnings.catch_warnings(record=True) as caught:
-            # numbers of unphysical magnitude (1e308 m) overflow inside the builders: report
-            # that as the model's error below, not as NumPy warnings and a traceback
-            warnings.simplefilter("always", RuntimeWarning)
+            # numbers of unphysical magnitude (1e308 m) overflow inside the builders: a build
+            # that fails says so as the model's error below, without the NumPy warnings on
+            # the way; a build that succeeds passes its warnings on
+            warnings.simplefilter("always")
             built = cfg.model.build(cfg)
         for w in caught:
-            if not issubclass(w.category, RuntimeWarning):
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     except ArithmeticError as exc:
         raise WorkflowError(doc.error(("model",), (
             f"cannot build the model: {type(exc).__name__}: {exc}; the model's and the "
