@@ -27,6 +27,9 @@ HERE = Path(__file__).resolve().parent
 FLAGS = {
     "gcc -O3": ["-O3"],
     "gcc -O3 -ffast-math": ["-O3", "-ffast-math"],
+    "gcc -O3 -ffast-math, SIMD rows": ["-O3", "-ffast-math", "-DOWNER_SIMD"],
+    "gcc -O3 -ffast-math, SIMD rows, 4 lanes": ["-O3", "-ffast-math", "-DOWNER_SIMD",
+                                                "-mprefer-vector-width=256"],
 }
 CHANGED = ["x", "v", "a", "dx", "cstate", "fs", "q_visc", "q_break_n", "q_break_s", "q_fric",
            "w_ext"]

@@ -2,7 +2,7 @@
 // no rotation, no contact dashpot) written in C, to measure how far numba's code is from a C
 // compiler's on the same algorithm and data (docs/performance.md, "The same step in C").
 // Not part of geodem: tests/perf/compare_c_step.py builds it with gcc and times it against
-// the numba kernels on the bench specimen. Semantics follow geodem/backends/step_bodies.py
+// the numba kernels on the bench specimen (-DOWNER_SIMD: the row loop vectorised). Semantics follow geodem/backends/step_bodies.py
 // (move_body, owner_body, finish_body) and geodem/core/law.py (contact).
 #include <math.h>
 #include <stdint.h>
@@ -36,6 +36,26 @@ static void move(int n, double*restrict x, const double*restrict v, const double
     }
 }
 
+// Warm the caches: the partners of element i + ahead and the rows of element i + 4 ahead.
+static inline void prefetch_ahead(int i, int hi, int n, int W, const double*x, const double*dx,
+    const double*props, const NBR_T*nbr, const int32_t*ostart, const CS_T*cstate,
+    const double*fs, const float*brate, const double*buf, const int32_t*cstart,
+    const int32_t*spill, int ahead){
+    if (ahead>0 && i+ahead<hi){
+        int ii=i+ahead; int c=cstart[ii];
+        for(int k=ostart[ii];k<W;k++){ int j=nbr[(size_t)ii*W+k]; if(j<0)break;
+            __builtin_prefetch(x+3*(size_t)j); __builtin_prefetch(dx+3*(size_t)j);
+            __builtin_prefetch(props+8*(size_t)j);
+            if (j<hi) __builtin_prefetch(buf+NB*(size_t)j); else {__builtin_prefetch(buf+NB*(size_t)(n+spill[c])); c++;}
+        }
+    }
+    if (ahead>0 && i+4*ahead<hi){
+        size_t ii=i+4*ahead;
+        __builtin_prefetch(nbr+ii*W); __builtin_prefetch(cstate+ii*W); __builtin_prefetch(brate+ii*W);
+        for(int off=0; off<W*3*8; off+=64) __builtin_prefetch((char*)(fs+ii*W*3)+off);
+    }
+}
+
 static void owner(int n, int W, int nslab, const double*restrict x, const double*restrict dx,
     const double*restrict props, const NBR_T*restrict nbr, const int32_t*restrict ostart,
     const int8_t*restrict mirror, CS_T*restrict cstate, double*restrict fs,
@@ -45,24 +65,85 @@ static void owner(int n, int W, int nslab, const double*restrict x, const double
     for (int t=0;t<nslab;t++){
         int lo = (int)((int64_t)t*n/nslab), hi=(int)((int64_t)(t+1)*n/nslab);
         for (int i=lo;i<hi;i++){
-            if (ahead>0 && i+ahead<hi){
-                int ii=i+ahead; int c=cstart[ii];
-                for(int k=ostart[ii];k<W;k++){ int j=nbr[(size_t)ii*W+k]; if(j<0)break;
-                    __builtin_prefetch(x+3*(size_t)j); __builtin_prefetch(dx+3*(size_t)j);
-                    __builtin_prefetch(props+8*(size_t)j);
-                    if (j<hi) __builtin_prefetch(buf+NB*(size_t)j); else {__builtin_prefetch(buf+NB*(size_t)(n+spill[c])); c++;}
-                }
-            }
-            if (ahead>0 && i+4*ahead<hi){
-                size_t ii=i+4*ahead;
-                __builtin_prefetch(nbr+ii*W); __builtin_prefetch(cstate+ii*W); __builtin_prefetch(brate+ii*W);
-                for(int off=0; off<W*3*8; off+=64) __builtin_prefetch((char*)(fs+ii*W*3)+off);
-            }
+            prefetch_ahead(i, hi, n, W, x, dx, props, nbr, ostart, cstate, fs, brate, buf, cstart,
+                           spill, ahead);
             const double xi0=x[3*i],xi1=x[3*i+1],xi2=x[3*i+2];
             const double di0=dx[3*i],di1=dx[3*i+1],di2=dx[3*i+2];
             const double*pi=props+8*(size_t)i;
             const double ri=pi[0],kni=pi[1],ksi=pi[2],xbi=pi[3],fs0i=pi[4],mui=pi[5];
             double f0=0,f1=0,f2=0,qn=0,qs=0,qf=0;
+#ifdef OWNER_SIMD
+            // The row loop vectorised (OpenMP SIMD): every branch of the law becomes a select, so
+            // one AVX-512 instruction evaluates up to 8 owned contacts of a row; the partners' data
+            // come in by gathers and the posts go out by scatters (a row's partners are distinct,
+            // so the lanes never collide). Same results as the scalar loop up to round-off.
+            const size_t row=(size_t)i*W;
+            int k0=ostart[i], kend=k0, kc=W;
+            while (kend<W && nbr[row+kend]>=0){ if (kc==W && nbr[row+kend]>=hi) kc=kend; kend++; }
+            const int cbase=cstart[i]-kc;
+            #pragma omp simd reduction(+:f0,f1,f2,qn,qs,qf)
+            for (int k=k0; k<kend; k++){
+                size_t e=row+k;
+                int j=nbr[e];
+                CS_T cs=cstate[e];
+                const double*pj=props+8*(size_t)j;
+                double bx=x[3*j]-xi0, by=x[3*j+1]-xi1, bz=x[3*j+2]-xi2;
+                double rx=dx[3*j]-di0, ry=dx[3*j+1]-di1, rz=dx[3*j+2]-di2;
+                double sx=fs[3*e], sy=fs[3*e+1], sz=fs[3*e+2];
+                double rj=pj[0],knj=pj[1],ksj=pj[2],xbj=pj[3],fs0j=pj[4],muj=pj[5];
+                double rate=brate[e];
+                double dist=sqrt(bx*bx+by*by+bz*bz), inv=1.0/dist;
+                double nx=bx*inv, ny=by*inv, nz=bz*inv;
+                double xn=dist-(ri+rj);
+                double skn=kni+knj, sks=ksi+ksj;
+                double kn= skn>0.0? kni*knj/skn : 0.0, ks= sks>0.0? ksi*ksj/sks : 0.0;
+                double hks= ks>0.0? 0.5/ks : 0.0, hkn= kn>0.0? 0.5/kn : 0.0;
+                double p=nx*sx+ny*sy+nz*sz;
+                sx-=p*nx; sy-=p*ny; sz-=p*nz;
+                double eqf=p*p*hks;
+                double pr=nx*rx+ny*ry+nz*rz;
+                double ux=rx-pr*nx, uy=ry-pr*ny, uz=rz-pr*nz;
+                double tx=sx+ks*ux, ty=sy+ks*uy, tz=sz+ks*uz;
+                double tr2=tx*tx+ty*ty+tz*tz, tu=tx*ux+ty*uy+tz*uz;
+                double mu=fmin(mui,muj);
+                double fnl;
+                if (hertz){
+                    double ei=kni/(M_PI*ri), ej=knj/(M_PI*rj), pen=fmax(-xn,0.0);
+                    double se=ei+ej, sr=ri+rj;
+                    fnl=-(4.0/3.0)*(ei*ej/se)*sqrt(ri*rj/sr)*pen*sqrt(pen);
+                } else fnl=kn*xn;
+                int bonded = cs==BONDED;
+                double fnb=kn*xn;
+                double fn0 = bonded? fnb : fnl;
+                double bf=rate*fmin(kni*xbi,knj*xbj);
+                int tbreak = bonded & (fnb>=bf);
+                double fsmax=rate*fmin(fs0i,fs0j)-mu*fnb;
+                int sfail = bonded & !tbreak & ((fsmax<0.0) | (tr2>fsmax*fsmax));
+                int sfree = sfail & (fnb>=0.0);
+                int open = !bonded & (xn>=0.0);
+                double lim=-mu*fn0;
+                int slide = (sfail & !sfree) | (!bonded & !open & (tr2>lim*lim));
+                double scale=lim/sqrt(fmax(tr2,1e-300));
+                int zero = tbreak | sfree | open;
+                double m1 = zero? 0.0 : slide? scale : 1.0;
+                double ox=tx*m1, oy=ty*m1, oz=tz*m1;
+                double fn = zero? 0.0 : fn0;
+                double ebreak=fnb*fnb*hkn+tr2*hks-0.5*(fnb*pr+tu);
+                double eqn = tbreak? ebreak : 0.0;
+                double eqs = sfree? ebreak : (sfail & !sfree)? (tr2-lim*lim)*hks-0.5*(1.0-scale)*tu : 0.0;
+                eqf += open? (sx*sx+sy*sy+sz*sz)*hks
+                     : (slide & !bonded)? ((sx+ox)*(tx-ox)+(sy+oy)*(ty-oy)+(sz+oz)*(tz-oz))*hks : 0.0;
+                CS_T csn = tbreak? code_t : sfail? code_s : cs;
+                fs[3*e]=ox; fs[3*e+1]=oy; fs[3*e+2]=oz;
+                if (csn!=cs){ cstate[e]=csn; cstate[(size_t)j*W+mirror[e]]=csn; }
+                double a0=fn*nx+ox, a1=fn*ny+oy, a2=fn*nz+oz;
+                f0+=a0; f1+=a1; f2+=a2; qn+=eqn; qs+=eqs; qf+=eqf;
+                size_t r = k<kc? (size_t)j : (size_t)n+spill[cbase+k];
+                double*br=buf+NB*r;
+                br[0]-=a0; br[1]-=a1; br[2]-=a2;
+                br[3]+=0.5*eqf; br[4]+=0.5*eqn; br[5]+=0.5*eqs;
+            }
+#else
             int c=cstart[i];
             for (int k=ostart[i]; k<W; k++){
                 size_t e=(size_t)i*W+k;
@@ -132,11 +213,14 @@ static void owner(int n, int W, int nslab, const double*restrict x, const double
                 if (eqn!=0.0||eqs!=0.0){ br[4]+=0.5*eqn; br[5]+=0.5*eqs; }
                 br[3]+=0.5*eqf;
             }
+#endif
             double*bi=buf+NB*(size_t)i;
             bi[0]+=f0; bi[1]+=f1; bi[2]+=f2; bi[3]+=0.5*qf; bi[4]+=0.5*qn; bi[5]+=0.5*qs;
         }
     }
 }
+
+
 
 static void finish(int n, double*restrict v, double*restrict a, const double*restrict dx,
     const double*restrict fr, const double*restrict fload, const double*restrict m,
