@@ -157,6 +157,22 @@ def _check_memory(cfg, doc) -> tuple[int, int | None]:
     return need, avail
 
 
+#: most time steps one workflow step may plan: 1e12 steps take 12 days even at a microsecond each
+MAX_STEPS = 10**12
+
+
+def _check_step_counts(doc, steps, dt) -> None:
+    for k, n in enumerate(steps):
+        if n <= MAX_STEPS:
+            continue
+        item = doc.get(("steps", k))
+        keys = [f for f in ("nsteps", "duration") if isinstance(item, dict) and f in item]
+        raise WorkflowError(doc.error(("steps", k, *keys[:1]), (
+            f"this step would make {n:.3g} time steps (dt = {dt:.3g} s); allowed: at most "
+            f"{MAX_STEPS:.0e} per step (12 days even at a microsecond per step): lower nsteps "
+            f"or duration")))
+
+
 def _build(cfg, doc):
     from geodem.core.engine import validate_state
     from geodem.workflow.models import BuildError
@@ -286,6 +302,7 @@ def prepare(path, sets=(), backend: str | None = None) -> Prepared:
     dt, source, stable = _time_step(cfg, doc, built.state)
     info = _PlanInfo(dt, built.n_across)
     steps = [int(s.planned_steps(info)) for s in cfg.steps]
+    _check_step_counts(doc, steps, dt)
     total = int(sum(steps))
     st = built.state
     output, runtime, compile_s = _estimate(cfg, name, built, total, st.n, st.dim)

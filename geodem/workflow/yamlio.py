@@ -54,6 +54,17 @@ def parse_scalar(text: str):
     return yaml.load(text, Loader=_Loader)  # noqa: S506 - _Loader is a SafeLoader
 
 
+def _tag_named_like_a_key(cur: dict, loc: tuple, k: int) -> bool:
+    """Whether ``loc[k]`` is a union tag that happens to be a key of ``cur`` too.
+
+    A library material ``{library: NAME, use: ...}`` has the tag ``library``: pydantic's
+    location of a bad ``use`` is ``(..., 'library', 'use')``, where ``library`` is the tag and
+    ``use`` is the next key of the same mapping."""
+    if k + 1 >= len(loc) or isinstance(cur[loc[k]], (dict, list)):
+        return False
+    return loc[k + 1] in cur
+
+
 @dataclass
 class Document:
     """Parsed input: ``data`` plus ``lines[path] = (file label, line or None)``."""
@@ -75,7 +86,7 @@ class Document:
         loc = tuple(loc)
         for k, comp in enumerate(loc):
             last = k == len(loc) - 1
-            if isinstance(cur, dict) and comp in cur:
+            if isinstance(cur, dict) and comp in cur and not _tag_named_like_a_key(cur, loc, k):
                 cur = cur[comp]
             elif isinstance(cur, list) and isinstance(comp, int) and 0 <= comp < len(cur):
                 cur = cur[comp]

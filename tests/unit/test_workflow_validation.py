@@ -352,3 +352,27 @@ def test_document_locates_union_tags(tmp_path):
     assert doc.locate(("model", "lattice_block", "sort"))[1:] == (3, ("model", "sort"))
     assert doc.locate(("materials", "rock", "micro"), keep_last=False)[1:] == \
         (13, ("materials", "rock"))
+
+
+def test_a_union_tag_named_like_a_key_is_not_taken_for_it(tmp_path):
+    # a library material's tag is "library", also a key of its mapping: pydantic's location of a
+    # bad "use" is (materials, rock, library, use), which must point at "use", not "library"
+    text = BLOCK.split("materials:")[0] + "materials:\n  rock: {library: sandstone, use: foo}\n" \
+        + "simulation:" + BLOCK.split("simulation:")[1]
+    p = write(tmp_path, text)
+    e = one_error(validate(p))
+    assert (e["line"], e["path"]) == ("13", "materials.rock.use") and "'lattice'" in e["msg"]
+    e = one_error(validate(write(tmp_path, text.replace(", use: foo", "")), "--set",
+                           "materials.rock.use=foo"))
+    assert e["file"] == "--set materials.rock.use=foo" and e["path"] == "materials.rock.use"
+
+
+@pytest.mark.parametrize("line, value, field", [("nsteps: 100", "nsteps: 1e15", "nsteps"),
+                                                ("nsteps: 100", "duration: 1.0e+9", "duration")])
+def test_a_step_too_long_to_run_is_refused(tmp_path, line, value, field):
+    p = write(tmp_path, BLOCK.replace(line, value))
+    e = one_error(validate(p))
+    assert (e["line"], e["path"]) == ("26", f"steps[1].{field}")
+    assert "allowed: at most 1e+12 per step" in e["msg"]
+    assert one_error(validate(write(tmp_path, BLOCK), "--set", "steps.1.nsteps=1e13"))["file"] \
+        == "--set steps.1.nsteps=1e13"
