@@ -7,7 +7,8 @@ import numpy as np
 from geodem.backends import register
 from geodem.backends.kernels import EXTRA_FORCE, EXTRA_MOVE, make_kernels, placeholders
 from geodem.core.checks import any_at_least
-from geodem.core.neighbors import _max_disp_speed, cross_tables, owner_tables, sort_rows
+from geodem.core.neighbors import (_max_disp_speed, cross_tables, owner_tables,
+                                   rows_version, sort_rows)
 from geodem.core.state import BROKEN_BASE, broken_code
 
 
@@ -117,6 +118,7 @@ class NumbaBackend(HostBackend):
             # rows left unsorted (renumbered by hand): a row is a set, sort it
             self.rows = s.nbr
             self.tables = owner_tables(s.nbr)
+        self.rows_version = rows_version(s)
         if self.tables is None:
             self.buf = self.cross = None
             return
@@ -180,7 +182,7 @@ class NumbaBackend(HostBackend):
     def _each_once(self):
         """Whether the step takes each contact once (owner pass + finish); rows replaced
         without a push (a wider width) get their tables first."""
-        if self.s.nbr is not self.rows:
+        if self.s.nbr is not self.rows or rows_version(self.s) != self.rows_version:
             self._rows_changed()
         return self.once and self.idx is None and self.tables is not None
 

@@ -129,6 +129,11 @@ class NumpyBackend(HostBackend):
         qn = np.where(tens, released, 0.0)
         qs = np.where(shr_t, released, 0.0)
         qs = qs + np.where(shr_c, (tr2 - lim_b * lim_b) * hks - 0.5 * (1.0 - scale) * wt, 0.0)
+        if s.hertz:  # broken in compression: the normal energy changes to Hertz's (law.contact)
+            ovc = np.where(shr_c, -xn, 0.0)
+            fhc = (4.0 / 3.0) * series_array(e_i, e_j) \
+                * np.sqrt(series_array(s.r[:, None], s.r[j])) * ovc * np.sqrt(ovc)
+            qs = qs + np.where(shr_c, 0.5 * kn * xn * xn - 0.4 * fhc * ovc, 0.0)
         qf = qf + np.where(apart, rot2 * hks, 0.0)
         qf = qf + np.where(slide, ((rot + new) * (trial - new)).sum(-1) * hks, 0.0)
         qf = np.where(valid, qf, 0.0)

@@ -34,11 +34,56 @@ class InstabilityError(RuntimeError):
     """The run became unstable (NaN, energy growth, deep overlap); the message says what to do."""
 
 
+def check_layout(state) -> None:
+    """ValueError unless every array of ``state`` has the shape, kind of number and memory
+    layout the kernels take: ``(N, dim)`` float64 element vectors, ``(N,)`` element scalars,
+    ``(N, W)`` rows, writeable and C-contiguous. Cheap (no pass over the data)."""
+    from geodem.core.state import PROPS_WIDTH
+
+    n, d = state.n, state.dim
+    if d not in (2, 3):
+        raise ValueError(f"dim is {d!r}; allowed: 2 or 3")
+    w = state.nbr.shape[1] if getattr(state.nbr, "ndim", 0) == 2 else -1
+    nr = state.nrot
+    want = {k: ((n, d), "f8") for k in ("x", "v", "a", "dx", "x_ref", "free", "fload")}
+    want.update({k: ((n,), "f8") for k in ("m", "eta", "q_visc", "q_break_n", "q_break_s",
+                                            "q_fric", "w_ext")})
+    want.update(props=((n, PROPS_WIDTH), "f8"), group=((n,), "i"), nbr=((n, w), "i"),
+                cstate=((n, w), "i"), fs=((n, w, d), "f8"), brate=((n, w), "f4"))
+    if state.rotation:
+        want.update({k: ((n, nr), "f8") for k in ("w", "wa", "dth", "rfree")})
+        want.update(inertia=((n,), "f8"), mr=((n, w, nr), "f8"))
+    if state.fdash is not None:
+        want.update(fdash=((n, d), "f8"))
+    for name, (shape, kind) in want.items():
+        arr = getattr(state, name)
+        if not isinstance(arr, np.ndarray):
+            raise ValueError(f"{name} is a {type(arr).__name__}; allowed: a NumPy array of "
+                             f"shape {shape}")
+        if arr.shape != shape:
+            raise ValueError(f"{name} has shape {arr.shape}; allowed: {shape} ({n} elements, "
+                             f"dim {d}, row width {w}); build states with "
+                             f"geodem.core.state.new_state and never resize them")
+        ok = arr.dtype.kind == "i" if kind == "i" else arr.dtype == np.dtype(kind)
+        if not ok:
+            allowed = "an integer type" if kind == "i" else str(np.dtype(kind))
+            raise ValueError(f"{name} has dtype {arr.dtype}; allowed: {allowed} (assign "
+                             f"values into the array, e.g. state.{name}[...] = values)")
+        if not (arr.flags.c_contiguous and arr.flags.writeable):
+            raise ValueError(f"{name} is not a writeable C-contiguous array; allowed: one "
+                             f"(assign into it: state.{name}[...] = values)")
+    g = state.gravity
+    if not isinstance(g, np.ndarray) or g.ndim != 1 or g.size < d or g.dtype.kind != "f":
+        raise ValueError(f"gravity is {g!r}; allowed: a float NumPy array of {d} (or 3) "
+                         f"components [m/s^2], e.g. np.array([0.0, -9.81])")
+
+
 def validate_state(state) -> None:
     """Reject non-physical input before any stepping (ValueError naming the parameter/range)."""
     n = state.n
     if n == 0:
         raise ValueError("the model has no elements")
+    check_layout(state)
     for name in ("x", "v", "fload"):
         arr = getattr(state, name)
         bad = ~np.isfinite(arr).all(axis=1)
@@ -73,6 +118,17 @@ def validate_state(state) -> None:
                              f"finite and {rng}")
     if not ((state.brate >= 0) & np.isfinite(state.brate)).all():
         raise ValueError("bond_rate must be finite and >= 0")
+    rows, cols = np.nonzero(state.nbr >= 0)
+    if rows.size:
+        j = state.nbr[rows, cols]
+        if int(j.max()) >= n:
+            raise ValueError(f"a neighbour row names element {int(j.max())}, but the model has "
+                             f"{n} elements; rebuild the rows (geodem.core.neighbors.build_rows)")
+        same = (state.x[rows] == state.x[j]).all(axis=1)
+        if same.any():
+            a, b = int(rows[same][0]), int(j[same][0])
+            raise ValueError(f"elements {a} and {b} are at the same position {state.x[a]}: their "
+                             f"contact has no direction; move one of them apart")
     # fixed elements must not overlap each other beyond contact
     fixed = ~(state.free != 0).any(axis=1)
     idx = np.flatnonzero(fixed)
@@ -227,6 +283,9 @@ class Simulation:
         if isinstance(nsteps, float) and nsteps.is_integer():
             nsteps = int(nsteps)
         _check_count("nsteps", nsteps, 0)
+        if callback is not None:
+            _check_count("every", every, 1)
+        check_layout(s)  # arrays replaced since the last run (cheap: no pass over the data)
         left = int(nsteps)
         while left > 0:
             # the steps up to the next event (check, field, callback) in one call where the
@@ -357,9 +416,17 @@ class Simulation:
 
     def _raise_nonfinite(self):
         s = self.state
+        self.sync()
         bad = np.flatnonzero(~np.isfinite(s.x).all(axis=1) | ~np.isfinite(s.v).all(axis=1))
+        what = "positions/velocities"
+        if not bad.size:
+            # finite motion, non-finite books or accelerations (e.g. a mass set to 0)
+            books = np.stack([getattr(s, k) for k in ("q_visc", "q_break_n", "q_break_s",
+                                                      "q_fric", "w_ext")], axis=1)
+            bad = np.flatnonzero(~np.isfinite(s.a).all(axis=1) | ~np.isfinite(books).all(axis=1))
+            what = "accelerations or energy books"
         raise InstabilityError(
-            f"the run became unstable at step {s.step}: non-finite positions/velocities of "
+            f"the run became unstable at step {s.step}: non-finite {what} of "
             f"elements {bad[:10].tolist()}{' ...' if bad.size > 10 else ''}; reduce dt "
             f"(now {s.dt:.4g} s, stability bound at the start of the run "
             f"{self._dt_bound:.4g} s) or check their stiffness and mass")
@@ -383,15 +450,21 @@ class Simulation:
         once = rows < j
         self.cracks["i"].extend(rows[once].tolist())
         self.cracks["j"].extend(j[once].tolist())
-        self.cracks["time"].extend((step[once] * s.dt).tolist())
+        # a code's step is the step that broke it, within this simulation's constant dt (an
+        # earlier stage may have run at another dt, so not step * dt)
+        self.cracks["time"].extend((s.time - (s.step - step[once]) * s.dt).tolist())
         self.cracks["type"].extend(kind[once].tolist())
         s.cstate[hit] = 0
 
     def cut(self, i, j) -> int:
         """Pre-cut joints: remove the bonds of pairs ``(i, j)`` and log them as type 0 cracks.
 
+        A loaded bond releases what it held: the drop of the elastic energy is booked as normal
+        breaking heat (half on each side, as a tensile break), and the forces are evaluated
+        again at the same positions (``dt = 0``), so the next step starts from the cut model.
         Returns the number of bonds cut (pairs that were not bonded are ignored)."""
         s = self.sync()
+        e_before = np.array(self.backend.elastic_energy(), dtype=np.float64)
         n = 0
         for a, b in zip(np.atleast_1d(i).tolist(), np.atleast_1d(j).tolist()):
             ka = np.flatnonzero(s.nbr[a] == b)
@@ -404,6 +477,12 @@ class Simulation:
                     self.cracks[key].append(val)
                 n += 1
         self.backend.push(("cstate",))
+        if n:
+            s.q_break_n += e_before - np.asarray(self.backend.elastic_energy())
+            s.dx.fill(0.0)
+            self.backend.push(("q_break_n", "dx"))
+            self.backend.force(0.0, broken_code(s.step, 1), broken_code(s.step, 2))
+            self._harvest()
         return n
 
     def crack_log(self) -> np.ndarray:
@@ -477,14 +556,16 @@ class Simulation:
     def check_energy(self, limit: float = 0.5):
         """Raise InstabilityError when the books are off by more than ``limit`` (energy growth)."""
         e = self.energies()
-        if not math.isfinite(e["total"]):
+        if not (math.isfinite(e["total"]) and math.isfinite(e["closure_error"])):
             self._raise_nonfinite()
         if e["closure_error"] > limit:
             s = self.state
             ke = (s.m[:, None] * s.v * s.v * (s.free != 0.0)).sum(axis=1)
             fast = [i for i in np.argsort(-ke)[:5].tolist() if ke[i] > 0.01 * ke.max()]
+            how = "grew without a source" if e["closure_residual"] > 0 else \
+                "was lost without a sink"
             raise InstabilityError(
-                f"energy grew without a source at step {s.step}: closure error "
+                f"energy {how} at step {s.step}: closure error "
                 f"{e['closure_error']:.3g} > {limit} (fastest elements {fast}); the time step "
                 f"{s.dt:.4g} s is probably too large (stability bound at the start of the run "
                 f"{self._dt_bound:.4g} s): reduce dt or check those elements' "
@@ -539,11 +620,14 @@ class Simulation:
         """
         from geodem.core import groups
 
+        if group is not None:
+            groups.members(self.state, group)  # an unknown group: KeyError before any change
         before = self.energies()["total"] if book_energy else 0.0
         st = self.sync()
         snap = {k: getattr(st, k).copy() for k in ("free", "v", "fload", "eta")
                 + (("w", "rfree") if st.rotation else ())}
         fn(st)
+        validate_state(st)  # the changed model must still be a valid one (ValueError)
         _refresh_acceleration(st, snap)
         self.backend.push()
         if not book_energy:

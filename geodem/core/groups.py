@@ -37,12 +37,21 @@ def members(state, name: str) -> np.ndarray:
 def _dofs(state, dofs):
     if dofs is None:
         return list(range(state.dim))
-    dofs = [dofs] if isinstance(dofs, (int, np.integer, str)) else list(dofs)
     names = "xyz"[:state.dim]
+    if isinstance(dofs, str):
+        dofs = list(dofs)  # "xy" names two degrees of freedom
+    elif isinstance(dofs, (int, np.integer)):
+        dofs = [dofs]
+    else:
+        dofs = list(dofs)
+    if not dofs:
+        raise ValueError(f"no degree of freedom given; allowed: names from {names!r} or indices "
+                         f"0..{state.dim - 1}")
     out = []
     for d in dofs:
-        k = names.index(d) if isinstance(d, str) and d in names else d
-        if not isinstance(k, (int, np.integer)) or not 0 <= k < state.dim:
+        k = names.index(d) if isinstance(d, str) and len(d) == 1 and d in names else d
+        if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) \
+                or not 0 <= k < state.dim:
             raise ValueError(f"degree of freedom {d!r} not in {list(names)} / 0..{state.dim - 1}")
         out.append(int(k))
     return out

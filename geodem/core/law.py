@@ -35,7 +35,8 @@ Heat [J] of the contact in this step (the caller books half on each side):
   the break (zero), so this is what the bond really held (exact for linear springs);
 * ``qs`` shear breaking: likewise the drop of the spring energy from ``Fs_trial`` to what is kept,
   ``(|Fs_trial|^2 - |Fs_kept|^2)/(2Ks) - (Fs_trial - Fs_kept) . dXs / 2``, plus the normal energy
-  when the pair was in tension;
+  when the pair was in tension; with ``hertz``, a pair broken in compression also releases
+  ``Kn Xn^2/2 - (2/5) |Fn_Hertz| |Xn|`` (its normal energy changes law);
 * ``qf`` friction: ``(Fs_1 + Fs_2)/2 . dS`` with ``dS = (Fs_trial - Fs_new)/Ks``, plus the energy
   lost by projecting the spring and by a contact opening (so the books close).
 """
@@ -155,6 +156,14 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
             lim = -mu * fn
             scale = lim / math.sqrt(tr2)
             qs = (tr2 - lim * lim) * hks - 0.5 * (1.0 - scale) * (tx * ux + ty * uy + tz * uz)
+            if hertz:
+                # the pair goes on as an unbonded Hertz contact: its normal energy at this Xn
+                # changes from the bond's Kn Xn^2/2 to (2/5) |Fn_Hertz| |Xn|; the drop is heat
+                ei = kni / (math.pi * ri)
+                ej = knj / (math.pi * rj)
+                fh = (4.0 / 3.0) * series(ei, ej) * math.sqrt(series(ri, rj)) * (-xn) \
+                    * math.sqrt(-xn)
+                qs += 0.5 * kn * xn * xn - 0.4 * fh * (-xn)
             return fn, nx, ny, nz, tx * scale, ty * scale, tz * scale, broken_s, qn, qs, qf
         return fn, nx, ny, nz, tx, ty, tz, cs, qn, qs, qf
 

@@ -441,6 +441,20 @@ def build_rows(state: State, skin: float | None = None, width: int | None = None
             _set_width(state, max(w_target, _ceil4(mx)))
     state.x_ref[...] = state.x
     state.skin = skin
+    rows_touched(state)
+
+
+def rows_touched(state: State) -> None:
+    """Mark the rows of ``state`` as rewritten in place (by :func:`build_rows`,
+    :func:`sort_rows`, :func:`spatial_sort`): a backend that keeps tables derived from the
+    rows (the numba backend's owner tables) then rebuilds them at its next step, pushed or
+    not. A runtime counter, ``state.rows_version``; not part of a checkpoint."""
+    state.rows_version = rows_version(state) + 1
+
+
+def rows_version(state: State) -> int:
+    """How many times the rows of ``state`` were rewritten in place (see :func:`rows_touched`)."""
+    return getattr(state, "rows_version", 0)
 
 
 # ----------------------------------------------------------------------------- rebuild test
@@ -741,7 +755,10 @@ def sort_rows(state: State) -> int:
     _normalize_rows(state)
     if state.n == 0:
         return 0
-    return int(_sort_row_arrays(*_row_bits(state)))
+    moved = int(_sort_row_arrays(*_row_bits(state)))
+    if moved:
+        rows_touched(state)
+    return moved
 
 
 def spatial_sort(state: State) -> np.ndarray:
@@ -784,6 +801,7 @@ def spatial_sort(state: State) -> np.ndarray:
         _take_rows(a2, perm, tmp)
         _copy_rows(tmp, a2)
     sort_rows(state)  # relabelled rows: sorted again, as build_rows leaves them
+    rows_touched(state)
     return perm
 
 

@@ -53,6 +53,21 @@ def omega_max_bound(state) -> float:
     return math.sqrt(w2)
 
 
+def contact_omega_bound(state) -> float:
+    """Highest angular frequency one new contact could give a movable element [rad/s]:
+    ``max_i K_i (1/m_i + 1/sqrt(m_i m_min))`` under the square root, with ``K_i = max(Kn, Ks)``
+    of ``i`` against the stiffest element (the row bound's term for a single contact, taken
+    over every partner the model holds)."""
+    from geodem.core.law import series_array
+
+    movable = (state.free != 0).any(axis=1)
+    if not movable.any():
+        return 0.0
+    kn, ks, m = state.kn[movable], state.ks[movable], state.m[movable]
+    k = np.maximum(series_array(kn, state.kn.max()), series_array(ks, state.ks.max()))
+    return math.sqrt(float((k * (1.0 / m + 1.0 / np.sqrt(m * state.m.min()))).max()))
+
+
 def stable_dt_bound(state) -> float:
     """``2 / omega_max_bound``: any ``dt`` below it is stable for the linear law [s]."""
     w = omega_max_bound(state)
@@ -65,10 +80,16 @@ def check_dt(state, dt: float) -> float:
     if not (dt > 0.0 and math.isfinite(dt)):
         raise ValueError(f"time step dt must be a positive finite number [s], got {dt}")
     lim = stable_dt_bound(state)
+    what = "Gershgorin bound over the current contacts"
+    if not math.isfinite(lim):
+        # no contacts yet: the first one must still be resolved
+        w = contact_omega_bound(state)
+        lim = math.inf if w == 0.0 else 2.0 / w
+        what = "no contacts yet: the bound for the first contact of any element"
     if dt >= lim:
         raise ValueError(
             f"time step dt = {dt:.4g} s is above the stability limit 2/omega_max = {lim:.4g} s "
-            f"(Gershgorin bound over the current contacts); allowed: 0 < dt < {lim:.4g} s, "
+            f"({what}); allowed: 0 < dt < {lim:.4g} s, "
             f"default {DEFAULT_FRACTION} x the smallest element period = "
             f"{default_dt(state):.4g} s")
     return lim

@@ -136,6 +136,12 @@ class H5Writer:
         s = self.f[path]["step"]
         return int(s[-1]) if s.shape[0] else None
 
+    def last_step_of(self, path: str):
+        """The last step of series ``path``, or None when the file has no such series."""
+        if not path or (path not in self._series and path not in self.f):
+            return None
+        return self.last_step(path)
+
     def set_attrs(self, **attrs) -> None:
         for k, v in attrs.items():
             self.f.attrs[k] = v

@@ -91,6 +91,23 @@ def _jsonable(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
+#: what every checkpoint marker the runner writes holds (runner.Runner._marker)
+_MARKER_KEYS = {"step", "config_hash", "step_index", "step_start"}
+
+
+def _npz_damage(path: Path) -> str | None:
+    """Why the checkpoint archive ``path`` cannot be read, or None when every member's CRC
+    checks out (a truncated or overwritten file)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            bad = z.testzip()
+    except (OSError, zipfile.BadZipFile, EOFError, ValueError) as exc:
+        return f"not a readable archive ({type(exc).__name__}: {exc})"
+    return f"member {bad} is corrupted (CRC mismatch)" if bad else None
+
+
 class RunDir:
     def __init__(self, path):
         self.path = Path(path)
@@ -122,6 +139,9 @@ class RunDir:
             if empty:
                 raise self._err("nothing to resume: the folder does not exist or is empty "
                                 "(run without --resume to start)")
+            if not (p / MANIFEST).exists():
+                raise self._err("is not a geodem run directory (no manifest.json): nothing to "
+                                "resume; choose another -o to start a run")
             if self.latest_checkpoint() is None:
                 raise self._err(f"nothing to resume: no complete checkpoint in {self.checkpoints}"
                                 " (run with --overwrite to start again)")
@@ -147,6 +167,11 @@ class RunDir:
         except OSError as exc:
             raise self._err(f"cannot create the folder: {exc.strerror or exc}; choose another "
                             "-o") from None
+        try:  # a folder the run cannot write into (read-only file system, permissions)
+            tempfile.TemporaryFile(dir=p).close()
+        except OSError as exc:
+            raise self._err(f"cannot write into the folder: {exc.strerror or exc}; choose "
+                            "another -o") from None
 
     def written_entries(self) -> set:
         """Names of the folder's entries that a geodem run writes: the fixed ones, and the
@@ -174,15 +199,31 @@ class RunDir:
         return sorted(f for f in d.iterdir() if _CKPT.match(f.name))
 
     def latest_checkpoint(self):
-        """``(marker dict, npz path)`` of the newest complete checkpoint, or None."""
+        """``(marker dict, npz path)`` of the newest complete and readable checkpoint, or None.
+
+        A damaged one (a marker that is not the runner's mapping, a truncated or corrupted
+        .npz: every member's CRC is checked) is passed over for the one before it; the names
+        and reasons of those passed over are left in ``self.damaged``."""
+        self.damaged = []
         for marker in reversed(self.checkpoint_markers()):
+            npz = marker.with_suffix(".npz")
             try:
                 data = json.loads(marker.read_text())
-            except (OSError, ValueError):
+            except (OSError, ValueError) as exc:
+                self.damaged.append((marker.name, f"unreadable marker ({exc})"))
                 continue
-            npz = marker.with_suffix(".npz")
-            if npz.exists():
-                return data, npz
+            if not isinstance(data, dict) or not _MARKER_KEYS <= set(data):
+                self.damaged.append((marker.name, "not a checkpoint marker (missing "
+                                                  f"{sorted(_MARKER_KEYS - set(data or ()))})"
+                                     if isinstance(data, dict) else "not a checkpoint marker"))
+                continue
+            if not npz.exists():
+                continue  # the marker is written after its .npz: an old, deleted one
+            reason = _npz_damage(npz)
+            if reason:
+                self.damaged.append((npz.name, reason))
+                continue
+            return data, npz
         return None
 
     def write_checkpoint(self, sim, marker: dict, keep: int) -> Path:

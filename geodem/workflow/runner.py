@@ -105,6 +105,40 @@ def human_bytes(n: float) -> str:
     return f"{n:.3g} PB"
 
 
+def _is_lock_error(exc: OSError) -> bool:
+    """Whether h5py refused a file because another process holds it open (HDF5's lock)."""
+    import errno
+
+    return getattr(exc, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK) or \
+        "unable to lock file" in str(exc)
+
+
+def _check_unlocked(path: Path) -> None:
+    """WorkflowError (exit 2, nothing changed) when another process holds ``path`` open."""
+    if not path.exists():
+        return
+    import h5py
+
+    try:
+        h5py.File(path, "a").close()
+    except OSError as exc:
+        if _is_lock_error(exc):
+            raise WorkflowError(ErrorItem(
+                str(path), None, "(file)",
+                f"is open in another program (HDF5 file lock); close it and run --resume again "
+                f"(nothing was changed)")) from None
+
+
+def _free_name(path: Path) -> Path:
+    """``path``, or ``NAME.1.EXT``, ``NAME.2.EXT``, ... when it exists (never overwrite)."""
+    k = 0
+    out = path
+    while out.exists():
+        k += 1
+        out = path.with_name(f"{path.stem}.{k}{path.suffix}")
+    return out
+
+
 def state_sha256(state) -> str:
     """sha256 of the positions followed by the velocities, as contiguous float64 bytes."""
     h = hashlib.sha256()
@@ -559,6 +593,8 @@ class Runner:
         self.files: list = []
         self.notes: list = []
         self._stop_signal = None
+        self._finishing = False
+        self._entries_before = set()
         self.sim = None
         self.h5 = None
         self.reporter = None
@@ -566,6 +602,9 @@ class Runner:
 
     # ------------------------------------------------------------------ signals
     def _on_signal(self, signum, frame):
+        if self._finishing:
+            self._stop_signal = signum
+            return
         if self._stop_signal is not None and signum == signal.SIGINT:
             raise KeyboardInterrupt  # second Ctrl-C: stop at once
         self._stop_signal = signum
@@ -642,7 +681,9 @@ class Runner:
                                  broken=len(self.sim.cracks["i"]), rate=self._rate)
             if stop:
                 raise Interrupted(f"--stop-after-steps {self.stop_after}")
-        self._check_stop(ctx)
+        # a signal that arrived in the last chunk is left to the next advance's first check,
+        # as a stop at the target is: the step records its sample at the target first (a
+        # checkpoint here, before it, lost that sample on resume)
 
     def _check_stop(self, ctx):
         if self._stop_signal is not None:
@@ -657,10 +698,22 @@ class Runner:
             "config_hash": self.prep.config_hash, "step_index": ctx.index if ctx else None,
             "step_start": ctx.start_step if ctx else None, "complete": complete,
             "results": self.results, "summary_extra": self.summary_extra, "plots": self.plots,
-            "files": self.files, "wall_time_s": self.wall_before + self._wall(),
+            "files": self._written_files(), "wall_time_s": self.wall_before + self._wall(),
             "stepping_wall_s": self.stepping_wall, "stepped": self.stepped,
             "written": _now(),
         }
+
+    def _written_files(self) -> list:
+        """The files the steps listed, and every other entry this run created in its folder
+        (a step's CSV, a moved output.damaged.h5): ``--overwrite`` deletes what is listed."""
+        try:
+            now = set(os.listdir(self.dir.path))
+        except OSError:
+            now = set()
+        fixed = {rd.CONFIG, rd.MANIFEST, rd.LOG, rd.OUTPUT, rd.SUMMARY, rd.CHECKPOINTS, rd.VTK}
+        new = sorted(n for n in now - self._entries_before - fixed
+                     if not n.startswith("."))  # atomic writes' temporary files
+        return list(self.files) + [n for n in new if n not in self.files]
 
     def checkpoint(self, ctx, complete=False) -> None:
         # a broken state stops the run here, before it can replace a good checkpoint
@@ -692,6 +745,7 @@ class Runner:
         self._rate = 0.0
         self.last_checkpoint = None
         self.dir.prepare(self.overwrite, self.resume)
+        self._entries_before = set(os.listdir(self.dir.path))
         if self.dir.kept:
             self.console.print(
                 f"--overwrite kept {len(self.dir.kept)} entr{'y' if len(self.dir.kept) == 1 else 'ies'}"
@@ -700,6 +754,12 @@ class Runner:
         marker, npz = None, None
         if self.resume:
             marker, npz = self.dir.latest_checkpoint()
+            for name, why in self.dir.damaged:
+                self.console.print(f"checkpoint {name} is damaged ({why}); passed over for the "
+                                   f"one before it", highlight=False, markup=False)
+            if self.dir.damaged:
+                self.notes.append(f"resumed from {npz.name}: newer checkpoint(s) damaged: "
+                                  + "; ".join(f"{n} ({w})" for n, w in self.dir.damaged))
             if marker.get("config_hash") != prep.config_hash:
                 raise WorkflowError(ErrorItem(
                     prep.doc.file, None, "(config)",
@@ -708,6 +768,7 @@ class Runner:
                     f"compare with {self.dir / rd.CONFIG}); --resume continues only the same "
                     f"workflow, backend and --set values: start a new run (another -o, or "
                     f"--overwrite)"))
+            _check_unlocked(self.dir / rd.OUTPUT)
             if marker.get("complete"):
                 summary = self._read_summary()
                 if summary.get("status") == "ok":
@@ -749,6 +810,9 @@ class Runner:
                 self.built.state = self.sim.state  # the rebuilt one only gave the reference
                 self.results = dict(marker.get("results") or {})
                 self.summary_extra.update(marker.get("summary_extra") or {})
+                if self.notes:  # what the resume itself found (damaged newer checkpoints)
+                    self.summary_extra["warnings"] = \
+                        list(self.summary_extra.get("warnings") or []) + self.notes
                 self.plots.update(marker.get("plots") or {})
                 self.files = list(marker.get("files") or [])
                 self.wall_before = float(marker.get("wall_time_s", 0.0))
@@ -759,6 +823,13 @@ class Runner:
                 start_step = int(marker["step_start"] or 0)
             self._open_outputs(marker)
             self.observer = Observer(self.sim, self.built, cfg, self.h5)
+            if marker is not None:
+                # samples the kept output already holds at the checkpoint's step (a resumed
+                # final checkpoint used to record its last sample and frame twice)
+                self.observer.last_obs_step = self.h5.last_step_of("observables/energy/total")
+                self.observer.last_frame_step = self.h5.last_step_of(
+                    f"particles/{cfg.outputs.frames.groups[0]}/{cfg.outputs.frames.fields[0]}"
+                    if cfg.outputs.frames.groups and cfg.outputs.frames.fields else "")
             if marker is None:
                 self.observer.write_static()
                 self.observer.record()
@@ -822,8 +893,14 @@ class Runner:
 
                 traceback.print_exc(file=sys.stderr)
         finally:
-            self._restore_signals()
-            self.summary = self._finish(status, error, interrupted_by)
+            # a signal while the summary is written is noted, not raised: the summary and the
+            # output's closing status are written in any case (a KeyboardInterrupt here used
+            # to leave no summary.json)
+            self._finishing = True
+            try:
+                self.summary = self._finish(status, error, interrupted_by)
+            finally:
+                self._restore_signals()
         return code
 
     def _traceback(self):
@@ -884,13 +961,26 @@ class Runner:
                 self.h5 = H5Writer(path, "a", attrs=attrs, creator=("geodem", __version__))
                 self.h5.truncate(int(marker["step"]))
             except OSError as exc:
-                bad = path.with_name("output.damaged.h5")
+                if _is_lock_error(exc):
+                    raise RunFailure(
+                        f"{path} is open in another program (HDF5 file lock: {exc}); close it "
+                        f"and resume again (nothing was changed)") from None
+                bad = _free_name(path.with_name("output.damaged.h5"))
                 os.replace(path, bad)
-                self.reporter.message(f"output.h5 could not be reopened ({exc}); moved it to "
-                                      f"{bad.name} and started a new one from step "
-                                      f"{marker['step']}")
+                note = (f"output.h5 could not be reopened ({exc}); moved it to {bad.name} and "
+                        f"started a new one at step {marker['step']}: the series before that "
+                        f"step are in {bad.name} only, and results measured from the series "
+                        f"see only the steps since")
+                self.reporter.message(note)
+                self.summary_extra.setdefault("warnings", []).append(note)
                 self.h5 = H5Writer(path, "w", attrs=attrs, creator=("geodem", __version__))
         else:
+            if marker is not None:
+                note = (f"output.h5 was missing when the run resumed at step {marker['step']}: "
+                        f"a new one holds the series from that step on only, and results "
+                        f"measured from the series see only those steps")
+                self.reporter.message(note)
+                self.summary_extra.setdefault("warnings", []).append(note)
             self.h5 = H5Writer(path, "w", attrs=attrs, creator=("geodem", __version__))
         vtk = self.cfg.outputs.vtk
         if vtk.every:
@@ -963,7 +1053,7 @@ class Runner:
             files.append("output.h5")
         if self.vtk is not None:
             files.append("vtk/frames.pvd")
-        summary["files"] = files + [f for f in self.files if f not in files]
+        summary["files"] = files + [f for f in self._written_files() if f not in files]
         if self.h5 is not None:
             try:
                 if sim is not None:

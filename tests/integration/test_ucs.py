@@ -75,3 +75,46 @@ def test_ucs_resume_is_bit_identical(ucs_run, tmp_path):
     for k in ("E", "nu", "ucs", "peak_strain", "cracks_tensile", "cracks_shear"):
         assert a[k] == b[k], k
     assert (out / "uniaxial_curve.csv").read_text() == (full / "uniaxial_curve.csv").read_text()
+
+
+def test_a_signal_that_lands_on_a_sample_keeps_the_sample(ucs_run, tmp_path, monkeypatch):
+    """SIGTERM arriving in the chunk of steps that reaches a sample of the curve: the sample is
+    recorded before the checkpoint, so the resumed run has every sample and the same E, nu and
+    UCS (the checkpoint used to be taken first, and the resumed curve lacked that row)."""
+    import signal
+
+    from geodem.core.engine import Simulation
+    from geodem.workflow import runner as wr
+
+    _, full = ucs_run
+    seen = {"n": 0}
+    advance_to, sim_run = wr.Runner.advance_to, Simulation.run
+
+    def spy_advance_to(self, target, ctx):
+        seen["runner"], seen["target"] = self, target
+        seen["n"] += ctx.step.kind == "uniaxial"
+        return advance_to(self, target, ctx)
+
+    def signal_on_sample(self, nsteps, *args, **kw):
+        out = sim_run(self, nsteps, *args, **kw)
+        if seen["n"] == 40 and self.state.step == seen["target"] and "sent" not in seen:
+            seen["sent"] = self.state.step
+            seen["runner"]._on_signal(signal.SIGTERM, None)
+        return out
+
+    monkeypatch.setattr(wr.Runner, "advance_to", spy_advance_to)
+    monkeypatch.setattr(Simulation, "run", signal_on_sample)
+    out = tmp_path / "sig"
+    r1 = CliRunner().invoke(app, ["run", str(UCS), "-o", str(out), "--no-progress"])
+    assert r1.exit_code == 143, r1.output
+    monkeypatch.undo()
+    rows = (out / "uniaxial_curve.csv").read_text().splitlines()
+    assert rows[-1].split(",")[0] == str(seen["sent"])  # the sample at the signal's step
+    r2 = CliRunner().invoke(app, ["run", str(UCS), "-o", str(out), "--no-progress", "--resume"])
+    assert r2.exit_code == 0, r2.output
+    a = json.loads((out / "summary.json").read_text())
+    b = json.loads((full / "summary.json").read_text())
+    assert a["state_sha256"] == b["state_sha256"]
+    for k in ("E", "nu", "ucs", "peak_strain"):
+        assert a[k] == b[k], k
+    assert (out / "uniaxial_curve.csv").read_text() == (full / "uniaxial_curve.csv").read_text()

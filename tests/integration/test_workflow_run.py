@@ -325,3 +325,101 @@ def test_checkpoints_by_wall_clock_and_keep(tmp_path):
     assert len(files) == 3  # many were written (one per chunk), the newest three kept
     log = (out / "log.txt").read_text().lower()
     assert log.count("checkpoint") >= 3
+
+
+def test_a_damaged_newest_checkpoint_is_passed_over(two_balls_run, tmp_path):
+    out = tmp_path / "tb"
+    assert run(TWO_BALLS, "-o", out, "--stop-after-steps", 300).exit_code == 0
+    ck = out / "checkpoints"
+    assert sorted(p.name for p in ck.glob("*.npz")) == ["step_000000000250.npz",
+                                                         "step_000000000300.npz"]
+    newest = ck / "step_000000000300.npz"
+    newest.write_bytes(newest.read_bytes()[:3000])  # truncated (a full disk, a killed copy)
+    res = run(TWO_BALLS, "-o", out, "--resume")
+    assert res.exit_code == 0, res.output
+    assert "checkpoint step_000000000300.npz is damaged" in res.stderr
+    r, full = summary(out), summary(two_balls_run[0])
+    assert r["status"] == "ok" and r["state_sha256"] == full["state_sha256"]
+    assert any("step_000000000300.npz" in w for w in r["warnings"])
+    a, b = h5_contents(out / "output.h5"), h5_contents(two_balls_run[0] / "output.h5")
+    for k in a:
+        assert np.array_equal(a[k], b[k]), k
+
+
+def test_a_marker_that_is_not_a_checkpoint_is_passed_over(tmp_path):
+    out = tmp_path / "tb"
+    assert run(TWO_BALLS, "-o", out, "--stop-after-steps", 300).exit_code == 0
+    (out / "checkpoints" / "step_000000000300.json").write_text("[]")
+    res = run(TWO_BALLS, "-o", out, "--resume")
+    assert res.exit_code == 0 and "step_000000000300.json is damaged" in res.stderr
+    for f in (out / "checkpoints").glob("*.json"):
+        f.write_text("{}")
+    res = run(TWO_BALLS, "-o", out, "--resume")
+    assert res.exit_code == 2 and "no complete checkpoint" in res.stderr, res.output
+
+
+def test_resuming_a_final_checkpoint_records_no_sample_twice(two_balls_run, tmp_path):
+    import shutil
+
+    out = tmp_path / "tb"
+    shutil.copytree(two_balls_run[0], out)
+    (out / "summary.json").unlink()  # a run stopped while writing its summary
+    res = run(TWO_BALLS, "-o", out, "--resume")
+    assert res.exit_code == 0, res.output
+    a, b = h5_contents(out / "output.h5"), h5_contents(two_balls_run[0] / "output.h5")
+    for k in b:
+        assert np.array_equal(a[k], b[k]), k  # was: every series' last sample twice
+
+
+def test_files_a_step_writes_are_listed_and_overwrite_removes_them(tmp_path, monkeypatch):
+    # a step's own file (a curve CSV) that the step did not list: every entry the run created
+    # in its folder goes into summary.json's files, so --overwrite knows it as the run's
+    from geodem.workflow import runner as wr
+
+    out = tmp_path / "p"
+    finish = wr.Runner._finish
+
+    def finish_after_a_csv(self, *a, **k):
+        (self.dir.path / "step_curve.csv").write_text("step\n1\n")
+        return finish(self, *a, **k)
+
+    monkeypatch.setattr(wr.Runner, "_finish", finish_after_a_csv)
+    assert run(TWO_BALLS, "-o", out, "--set", "steps.oscillate.nsteps=20").exit_code == 0
+    monkeypatch.undo()
+    assert "step_curve.csv" in summary(out)["files"]
+    res = run(TWO_BALLS, "-o", out, "--overwrite", "--set", "steps.oscillate.nsteps=20")
+    assert res.exit_code == 0 and not (out / "step_curve.csv").exists()
+    assert "kept" not in res.output
+
+
+def test_resume_refuses_a_locked_output_and_changes_nothing(tmp_path):
+    out = tmp_path / "tb"
+    assert run(TWO_BALLS, "-o", out, "--stop-after-steps", 300).exit_code == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    import subprocess
+    import sys
+
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import h5py, sys, time; f = h5py.File(sys.argv[1], 'r'); print('open', flush=True); "
+        "time.sleep(60)"), str(out / "output.h5")], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "open"
+        res = run(TWO_BALLS, "-o", out, "--resume")
+    finally:
+        holder.kill()
+        holder.wait()
+    assert res.exit_code == 2 and "is open in another program" in res.stderr, res.output
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+    assert not (out / "output.damaged.h5").exists()
+    assert run(TWO_BALLS, "-o", out, "--resume").exit_code == 0  # closed: resumes
+
+
+def test_a_folder_the_run_cannot_write_into_is_refused(tmp_path, monkeypatch):
+    import tempfile
+
+    def read_only(*a, **k):
+        raise OSError(30, "Read-only file system")
+
+    monkeypatch.setattr(tempfile, "TemporaryFile", read_only)
+    res = run(TWO_BALLS, "-o", tmp_path / "ro")
+    assert res.exit_code == 2 and "cannot write into the folder: Read-only" in res.stderr

@@ -233,3 +233,86 @@ def test_overlap_limit_survives_a_checkpoint(tmp_path):
     sim = Simulation(tb.build(), backend="numba", overlap_limit=0.8)
     sim.save(tmp_path / "c.npz")
     assert Simulation.load(tmp_path / "c.npz", backend="numba").overlap_limit == 0.8
+
+
+def _pair(gap, v=0.0, **kw):
+    """Two discs of radius 5 mm, 1 g, ``gap`` apart, approaching at ``v`` each."""
+    x = np.array([[0.0, 0.0], [0.01 + gap, 0.0]])
+    st = new_state(x, 0.005, 1e-3, kn=1e5, ks=3e4, mu=0.5, **kw)
+    st.v[0, 0], st.v[1, 0] = v, -v
+    return st
+
+
+def test_dt_is_bounded_before_the_first_contact():
+    # no contacts yet: the bound over the current rows is infinite, so any dt passed and the
+    # two discs went through each other; the first contact's bound (2 sqrt(m / Kn (1 + 1)))
+    # with Kn = kn/2: omega^2 = kn/2 (1/m + 1/m) = kn/m -> dt < 2 sqrt(m/kn) = 2e-4 s
+    from geodem.core.neighbors import build_rows
+
+    st = _pair(0.04, v=5.0)
+    build_rows(st, skin=0.001)
+    with pytest.raises(ValueError, match=r"above the stability limit .* = 0.0002 s \(no contacts"):
+        Simulation(st, backend="numba", dt=4e-3)
+    Simulation(st, backend="numba", dt=1.9e-4)  # below it: accepted
+
+
+def test_state_arrays_of_the_wrong_layout_are_refused():
+    st = tb.build()
+    sim = Simulation(st, backend="numba")
+    for name, value, match in (
+            ("gravity", np.array([-9.81]), r"gravity is .* allowed: a float NumPy array of 2"),
+            ("gravity", [0.0, 0.0, -9.81], r"gravity is .* allowed"),
+            ("m", np.ones(st.n + 1), r"m has shape \(%d,\); allowed: \(%d,\)" % (st.n + 1, st.n)),
+            ("x", st.x.astype(np.float32), r"x has dtype float32; allowed: float64"),
+            ("v", np.asfortranarray(np.zeros((st.n, st.dim))),
+             r"v is not a writeable C-contiguous array")):
+        old = getattr(st, name)
+        setattr(st, name, value)
+        with pytest.raises(ValueError, match=match):
+            sim.run(1)  # checked at every run, before any step
+        setattr(st, name, old)
+    ro = st.x.copy()
+    ro.setflags(write=False)
+    st.x = ro
+    with pytest.raises(ValueError, match=r"x is not a writeable"):
+        Simulation(st, backend="numba")
+
+
+def test_coincident_elements_are_refused_before_stepping():
+    x = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0099, 0.0, 0.0]])
+    st = new_state(x, 0.005, 1e-3, kn=1e5, ks=3e4, xb=1e-3, fs0=10.0, mu=0.5)
+    rows_from_pairs(st, [0, 1], [1, 2], bonded=True)
+    for backend in ("numba", "numpy"):
+        with pytest.raises(ValueError, match=r"elements 0 and 1 are at the same position"):
+            Simulation(st, backend=backend)
+
+
+def test_a_change_that_breaks_the_model_is_refused():
+    st = tb.build()
+    sim = Simulation(st, backend="numba")
+    sim.run(10)
+    v = st.v.copy()
+    with pytest.raises(KeyError, match="unknown group 'nope'"):
+        sim.change(lambda s: s.v.__setitem__((1, 0), 1.0), group="nope")
+    assert np.array_equal(st.v, v)  # fn not applied
+    with pytest.raises(ValueError, match=r"parameter m of element 1 .* > 0"):
+        sim.change(lambda s: s.m.__setitem__(1, 0.0))
+
+
+def test_non_finite_books_stop_the_monitor():
+    # finite positions and velocities but a NaN in the books: the closure error is NaN, and
+    # NaN > limit is False, so the monitor used to pass it
+    st = tb.build()
+    sim = Simulation(st, backend="numba")
+    sim.run(10)
+    st.w_ext[1] = np.nan
+    with pytest.raises(InstabilityError, match=r"non-finite accelerations or energy books of "
+                                               r"elements \[1\]"):
+        sim.check_energy()
+
+
+def test_run_checks_its_callback_interval():
+    sim = Simulation(tb.build(), backend="numba")
+    for every in (-1, 0, 2.5, "a"):
+        with pytest.raises(ValueError, match="every must be an integer >= 1"):
+            sim.run(5, callback=lambda s: None, every=every)
