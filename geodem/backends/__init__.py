@@ -45,6 +45,8 @@ def available() -> list[str]:
 
 def resolve_name(name: str | None = None) -> str:
     name = name or os.environ.get("GEODEM_BACKEND") or "auto"
+    if not isinstance(name, str):
+        raise BackendError(f"backend {name!r} is not a name; allowed: {', '.join(ALLOWED)}")
     name = name.strip().lower()
     if name not in ALLOWED:
         raise BackendError(f"backend {name!r} is not known; allowed: {', '.join(ALLOWED)}")

@@ -171,12 +171,13 @@ def _refresh_acceleration(st, snap) -> None:
     """Make ``a`` consistent with changed freedom, velocity, load or damping (see ``change``)."""
     m = st.m[:, None]
     g = np.asarray(st.gravity, dtype=np.float64)[:st.dim][None, :]
+    g0 = np.asarray(snap.get("gravity", st.gravity), dtype=np.float64)[:st.dim][None, :]
     fr0, fr1 = snap["free"] != 0.0, st.free != 0.0
     changed = (fr0 != fr1) | (snap["v"] != st.v) | (snap["fload"] != st.fload) | \
-        (snap["eta"] != st.eta)[:, None]
+        (snap["eta"] != st.eta)[:, None] | (g0 != g)
     if not changed.any():
         return
-    f_contact = np.where(fr0, m * st.a - m * g - snap["fload"] + snap["eta"][:, None] * snap["v"],
+    f_contact = np.where(fr0, m * st.a - m * g0 - snap["fload"] + snap["eta"][:, None] * snap["v"],
                          m * st.a)
     a_new = np.where(fr1, (f_contact + m * g + st.fload - st.eta[:, None] * st.v) / m,
                      f_contact / m)
@@ -206,7 +207,8 @@ class Simulation:
     overlap_limit: largest allowed overlap as a fraction of the smaller radius; a model whose
         unbonded contacts start beyond it is refused (ValueError) unless the monitor is off.
     monitor_every: steps between energy-growth and overlap checks (0 = never, e.g. while a
-        packing is being relaxed); must be a multiple of ``check_every``.
+        packing is being relaxed); the monitor runs at the first check at or after each multiple
+        of ``monitor_every``.
     allow_unstable_dt: skip the refusal of a ``dt`` above the (conservative) stability bound;
         only for studies that measure where the integration fails
         (:mod:`geodem.labtests.stability`): the run then stops with InstabilityError.
@@ -221,7 +223,8 @@ class Simulation:
                  allow_unstable_dt=False):
         _check_count("check_every", check_every, 1)
         _check_count("monitor_every", monitor_every, 0)
-        if isinstance(overlap_limit, bool) or not isinstance(overlap_limit, (int, float)) \
+        if isinstance(overlap_limit, (bool, np.bool_)) \
+                or not isinstance(overlap_limit, (int, float, np.integer, np.floating)) \
                 or not 0.0 < overlap_limit <= 1.0:
             raise ValueError(f"overlap_limit must be a number with 0 < overlap_limit <= 1 (a "
                              f"fraction of the smaller radius), got {overlap_limit!r}")
@@ -240,7 +243,7 @@ class Simulation:
             _check_initial_overlaps(state, overlap_limit)
         state.dt = float(dt)
         self.check_every = int(check_every)
-        self.overlap_limit = overlap_limit
+        self.overlap_limit = float(overlap_limit)
         self.monitor_every = int(monitor_every)
         self._schedule_checks()
         self.rebuilds = 0
@@ -624,7 +627,8 @@ class Simulation:
             groups.members(self.state, group)  # an unknown group: KeyError before any change
         before = self.energies()["total"] if book_energy else 0.0
         st = self.sync()
-        snap = {k: getattr(st, k).copy() for k in ("free", "v", "fload", "eta")
+        snap = {k: np.array(getattr(st, k), dtype=np.float64)
+                for k in ("free", "v", "fload", "eta", "gravity")
                 + (("w", "rfree") if st.rotation else ())}
         fn(st)
         validate_state(st)  # the changed model must still be a valid one (ValueError)
@@ -668,6 +672,10 @@ class Simulation:
         from geodem.fields import field_from_config, unpack_arrays
 
         state, extra, more = load_state(path, with_arrays=True)
+        if "check_every" not in extra:
+            raise ValueError(f"{path} holds a state (geodem.core.checkpoint.save_state) but no "
+                             f"simulation: continue it with Simulation(load_state(path)), or "
+                             f"save simulations with Simulation.save")
         sim = cls.__new__(cls)
         sim.state = state
         sim.check_every = int(extra["check_every"])

@@ -17,10 +17,21 @@ import numpy as np
 
 def add_group(state, name: str, mask) -> int:
     """Put the elements selected by ``mask`` (bool (N,) or indices) into a new group ``name``."""
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"a group name is a non-empty string, got {name!r}")
     if name in state.groups:
         raise ValueError(f"group {name!r} already exists; groups: {sorted(state.groups)}")
     sel = np.zeros(state.n, bool)
-    sel[np.asarray(mask)] = True
+    m = np.asarray(mask)
+    if m.dtype != bool:
+        if m.size and (m.dtype.kind not in "iu" or m.min() < -state.n or m.max() >= state.n):
+            raise ValueError(f"group {name!r}: give a bool mask of {state.n} values or element "
+                             f"indices in 0..{state.n - 1}")
+        m = m.astype(np.int64)
+    elif m.shape != (state.n,):
+        raise ValueError(f"group {name!r}: a bool mask needs {state.n} values, got shape "
+                         f"{m.shape}")
+    sel[m] = True
     gid = max(state.groups.values(), default=0) + 1
     state.groups[name] = gid
     state.group[sel] = gid

@@ -209,6 +209,11 @@ def new_state(x, r, m, *, dim=None, width=16, kn=0.0, ks=0.0, xb=0.0, fs0=0.0, m
 
     Scalar parameters are broadcast to all elements. Rows start empty (``nbr = -1``).
     """
+    if np.iscomplexobj(x):
+        raise ValueError("positions must be real numbers, got complex values")
+    if isinstance(width, (bool, np.bool_)) or not isinstance(width, (int, np.integer)) \
+            or width < 1:
+        raise ValueError(f"width (contacts per row) must be an integer >= 1, got {width!r}")
     x = np.ascontiguousarray(x, dtype=np.float64)
     if x.ndim != 2 or x.shape[1] not in (2, 3):
         raise ValueError(f"positions must have shape (N, 2) or (N, 3), got {x.shape}")

@@ -316,3 +316,37 @@ def test_run_checks_its_callback_interval():
     for every in (-1, 0, 2.5, "a"):
         with pytest.raises(ValueError, match="every must be an integer >= 1"):
             sim.run(5, callback=lambda s: None, every=every)
+
+
+def test_small_api_mistakes_get_clear_errors(tmp_path):
+    from geodem.backends import BackendError
+    from geodem.core import groups
+    from geodem.core.checkpoint import save_state
+
+    st = tb.build()
+    with pytest.raises(BackendError, match="is not a name"):
+        Simulation(st, backend=5)
+    Simulation(st, backend="numba", overlap_limit=np.float32(0.5))  # a NumPy float is a number
+    for width in (-1, 2.5, True):
+        with pytest.raises(ValueError, match="width .* integer >= 1"):
+            new_state(np.zeros((2, 2)) + [[0, 0], [1, 0]], 0.1, 1.0, width=width)
+    with pytest.raises(ValueError, match="complex"):
+        new_state(np.array([[0, 0], [1, 0]], complex), 0.1, 1.0)
+    assert groups.add_group(st, "none", []) > 0 and groups.members(st, "none").size == 0
+    for name, mask, match in ((7, [0], "non-empty string"), ("far", [10**6], "indices in"),
+                              ("half", np.ones(2, bool), "needs %d values" % st.n)):
+        with pytest.raises(ValueError, match=match):
+            groups.add_group(st, name, mask)
+    save_state(st, tmp_path / "plain.npz")
+    with pytest.raises(ValueError, match="holds a state .* but no simulation"):
+        Simulation.load(tmp_path / "plain.npz")
+
+
+def test_a_change_of_gravity_refreshes_the_accelerations():
+    st = tb.build()
+    sim = Simulation(st, backend="numba")
+    sim.run(5)
+    free = st.free[:, 1] != 0
+    a0 = st.a[free, 1].copy()
+    sim.change(lambda s: s.gravity.__setitem__(1, -9.81), book_energy=False)
+    assert np.allclose(st.a[free, 1], a0 - 9.81, rtol=0, atol=1e-9)
