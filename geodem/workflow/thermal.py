@@ -62,7 +62,16 @@ ROD_PROFILE = "thermal_rod_profile.csv"
 def _csv_rows(path, step):
     with open(path) as f:
         rows = list(csv.reader(f))[1:]
-    return [[float(v) for v in r] for r in rows if int(float(r[0])) <= step]
+    # values as they were written: whole numbers (step, broken bonds) stay whole, so the
+    # kept rows of a resumed run are the same text
+    return [[_number(v) for v in r] for r in rows if int(float(r[0])) <= step]
+
+
+def _number(text: str):
+    try:
+        return int(text)
+    except ValueError:
+        return float(text)
 
 
 def _write_csv(path, header, rows):
