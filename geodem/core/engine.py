@@ -248,6 +248,7 @@ class Simulation:
         self._schedule_checks()
         self.rebuilds = 0
         self.cracks = {"i": [], "j": [], "time": [], "type": []}
+        self._time_ref = (int(state.step), float(state.time))  # crack times: see _harvest_host
         self.fields = []
         self._field_every = 0
         self.backend = select(backend)
@@ -451,12 +452,20 @@ class Simulation:
         step, kind = decode_broken(s.cstate[rows, cols])
         j = s.nbr[rows, cols]
         once = rows < j
-        self.cracks["i"].extend(rows[once].tolist())
-        self.cracks["j"].extend(j[once].tolist())
-        # a code's step is the step that broke it, within this simulation's constant dt (an
-        # earlier stage may have run at another dt, so not step * dt)
-        self.cracks["time"].extend((s.time - (s.step - step[once]) * s.dt).tolist())
-        self.cracks["type"].extend(kind[once].tolist())
+        i, j, step, kind = rows[once], j[once], step[once], kind[once]
+        # in the order they broke (then by pair), whichever steps one harvest spans: the log
+        # is the same however a run was cut into calls (a resumed run, other chunks)
+        order = np.lexsort((j, i, step))
+        i, j, step, kind = i[order], j[order], step[order], kind[order]
+        self.cracks["i"].extend(i.tolist())
+        self.cracks["j"].extend(j.tolist())
+        # a code's step is the step that broke it, within this simulation's constant dt, counted
+        # from the step and time this simulation started at (an earlier stage may have run at
+        # another dt, so not step * dt; and not from the time now, whose sum of dt's depends on
+        # when the harvest happens)
+        step0, time0 = self._time_ref
+        self.cracks["time"].extend((time0 + (step - step0) * s.dt).tolist())
+        self.cracks["type"].extend(kind.tolist())
         s.cstate[hit] = 0
 
     def cut(self, i, j) -> int:
@@ -657,6 +666,7 @@ class Simulation:
                                             "check_every": self.check_every,
                                             "monitor_every": self.monitor_every,
                                             "overlap_limit": self.overlap_limit,
+                                            "time_ref": list(self._time_ref),
                                             "next_check": self._next_check,
                                             "next_monitor": self._next_monitor,
                                             "fields": [{"kind": f.kind, "config": f.config(),
@@ -684,6 +694,8 @@ class Simulation:
         sim._schedule_checks(extra.get("next_check"), extra.get("next_monitor"))
         sim.rebuilds = 0
         sim.cracks = extra["cracks"]
+        ref = extra.get("time_ref", (0, 0.0))  # checkpoints before it: times were step * dt
+        sim._time_ref = (int(ref[0]), float(ref[1]))
         sim._eg0, sim._emech0 = extra["eg0"], extra["emech0"]
         sim._floor = max(1e-12 * 0.5 * float((state.kn * state.r * state.r).sum()), 1e-300)
         sim._dt_bound = timestep.stable_dt_bound(state)

@@ -271,3 +271,19 @@ def test_rows_rebuilt_in_place_between_runs_need_no_push():
         out[be] = st.v.copy()
     assert out["numba"][3, 0] > 0.3
     assert np.allclose(out["numba"], out["numpy"], rtol=1e-12, atol=0)
+
+
+def test_the_crack_log_does_not_depend_on_how_a_run_is_cut_into_calls():
+    # a harvest of the contact states (at each check and at the end of each run call) may span
+    # several steps; the log is ordered by step, then pair, so the calls do not show in it
+    logs = []
+    for calls in ((60,), (7,) * 8 + (4,)):
+        st = breaking_block(600)
+        sim = Simulation(st, backend="numba", monitor_every=0)
+        for n in calls:
+            sim.run(n)
+        logs.append(sim.crack_log())
+    a, b = logs
+    assert len(a) > 20 and np.unique(a["time"]).size > 3
+    assert np.array_equal(a, b)
+    assert np.all(np.diff(a["time"]) >= 0)
