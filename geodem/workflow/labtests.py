@@ -37,6 +37,7 @@ import numpy as np
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
     F,
+    Int,
     MacroMaterial,
     ModelBase,
     Name,
@@ -179,6 +180,9 @@ class Specimen(ModelBase):
     material: Name = F(..., description="Material name (rock properties E, nu, Tu, Cu, mu_i, "
                                         "rho)")
     platen_depth: float = F(1.0, gt=0, le=5, description="Platen layer depth in d_mean")
+    min_bonds: Int = F(0, ge=0, le=6, description="Remove the elements left with fewer intact "
+                                                   "bonds than this, and balance again "
+                                                   "(0: keep every element)")
 
     def n_elements(self):
         vol = float(np.prod(self.size))
@@ -212,6 +216,16 @@ class Specimen(ModelBase):
                                     sm.material, self.dim, seed, element=sm.element)
         except ValueError as exc:
             raise BuildError(("size",), str(exc)) from None
+        removed = 0
+        if self.min_bonds:
+            # a loose element (a rattler of the packing, or one that lost its bonds while
+            # cementing) is held by nothing: pore pressure, for one, pushes it out of the box
+            from geodem.workflow.brazilian import prune_loose
+
+            st, removed = prune_loose(st, self.min_bonds, n_across=self.n_across())
+            if st.n == 0:
+                raise BuildError(("min_bonds",), f"no element has {self.min_bonds} intact bonds; "
+                                                 f"allowed: a lower min_bonds")
         ax = self.dim - 1
         lo, hi = st.x[:, ax].min(), st.x[:, ax].max()
         depth = self.platen_depth * self.d_mean
@@ -220,6 +234,8 @@ class Specimen(ModelBase):
         info = {"diameter": self.d_mean, "size": list(self.size), "material": sm.label,
                 "material_warnings": list(sm.warnings),
                 "specimen_report": {k: v for k, v in rep.items() if k != "packing"}}
+        if self.min_bonds:
+            info["loose_removed"] = removed
         return BuiltModel(st, st.x.copy(), self.n_across(), info)
 
 
