@@ -191,6 +191,9 @@ def _check_memory(cfg, doc) -> tuple[int, int | None]:
     return need, avail
 
 
+#: disk room a run keeps beyond its estimates [bytes] (see Runner._check_disk_space)
+DISK_HEADROOM = 4 << 20
+
 #: most time steps one workflow step may plan: 1e12 steps take 12 days even at a microsecond each
 MAX_STEPS = 10**12
 
@@ -744,7 +747,14 @@ class Runner:
         self.stepped = 0
         self._rate = 0.0
         self.last_checkpoint = None
+        created = not self.dir.path.exists()
         self.dir.prepare(self.overwrite, self.resume)
+        try:
+            self._check_disk_space()
+        except WorkflowError:
+            if created and not any(self.dir.path.iterdir()):
+                self.dir.path.rmdir()  # leave nothing behind
+            raise
         self._entries_before = set(os.listdir(self.dir.path))
         if self.dir.kept:
             self.console.print(
@@ -910,6 +920,31 @@ class Runner:
             traceback.print_exc(file=sys.stderr)
 
     # ------------------------------------------------------------------ files
+    def _check_disk_space(self) -> None:
+        """WorkflowError (exit 2) when the folder's file system lacks the room the plan
+        estimates: output.h5, and ``keep + 1`` checkpoints (one is written before the oldest
+        goes). A full disk mid-run crashes the HDF5 library itself (a bus error), so this is
+        checked before the first step."""
+        import shutil
+
+        plan, keep = self.prep.plan, self.cfg.checkpoints.keep
+        out = self.dir / rd.OUTPUT
+        have = out.stat().st_size if self.resume and out.exists() else 0
+        # with room to spare: the output estimate leaves out HDF5's chunk and metadata
+        # overhead (two_balls: 0.76 MB estimated, 2 MB written)
+        need = 2 * max(plan.output_bytes - have, 0) + (keep + 1) * plan.checkpoint_bytes \
+            + DISK_HEADROOM
+        free = shutil.disk_usage(self.dir.path).free
+        if free < need:
+            raise WorkflowError(ErrorItem(
+                str(self.dir.path), None, "-o",
+                f"the run needs about {human_bytes(need)} (twice the estimated output.h5 of "
+                f"{human_bytes(plan.output_bytes)}, {keep + 1} checkpoints of about "
+                f"{human_bytes(plan.checkpoint_bytes)}, {human_bytes(DISK_HEADROOM)} to "
+                f"spare), and only {human_bytes(free)} is free "
+                f"there; free some space, choose another -o, or write less (outputs.*.every, "
+                f"checkpoints.keep)"))
+
     def _write_config_manifest(self, marker):
         prep, cfg = self.prep, self.cfg
         threads = _threads(prep.backend)

@@ -423,3 +423,15 @@ def test_a_folder_the_run_cannot_write_into_is_refused(tmp_path, monkeypatch):
     monkeypatch.setattr(tempfile, "TemporaryFile", read_only)
     res = run(TWO_BALLS, "-o", tmp_path / "ro")
     assert res.exit_code == 2 and "cannot write into the folder: Read-only" in res.stderr
+
+
+def test_a_disk_without_room_for_the_run_is_refused_before_it_starts(tmp_path, monkeypatch):
+    # a full disk mid-run crashes the HDF5 library itself (a bus error, no summary)
+    import collections
+    import shutil
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(2 << 20, 1 << 20, 1 << 20))
+    res = run(TWO_BALLS, "-o", tmp_path / "full")
+    assert res.exit_code == 2 and "only 1 MB is free there" in " ".join(res.stderr.split())
+    assert not (tmp_path / "full").exists()
