@@ -406,7 +406,12 @@ def relax(st, overlap, *, max_rounds=30, sim=None, backend=None):
     if sim is None:
         neighbors.build_rows(st)
         sim = _simulation(st, backend)
-    sim.change(lambda z: z.gravity.__setitem__(slice(None), 0.0), book_energy=False)
+    # gravity off for the jamming stage, set directly rather than through sim.change (which
+    # also refreshes the accelerations for it): the first step keeps the accelerations under
+    # gravity, as every packing and calibration so far was made (the stage's energy books are
+    # not used, and a refresh moves every packing, chaotically, to another one)
+    sim.sync().gravity[:] = 0.0
+    sim.backend.push()
     n = _n_across(st)
     d = _stats(st)[1]
     steps = rounds = lifts = 0
