@@ -24,6 +24,7 @@ Contract of a field (one contract test runs over every registered kind):
 from __future__ import annotations
 
 import math
+import numbers
 from typing import ClassVar
 
 import numpy as np
@@ -44,6 +45,19 @@ def register_field(kind: str):
         return cls
 
     return deco
+
+
+def whole_number(name, v, lo, prefix="", why="", err=ValueError) -> int:
+    """``v`` as an int >= ``lo``: whole numbers only (an int, or a float/NumPy number with no
+    fraction; not a bool, NaN or 1.5), else ``err`` naming ``name`` and the allowed range."""
+    ok = isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+    if ok:
+        f = float(v)
+        ok = math.isfinite(f) and f == math.floor(f) and f >= lo
+    if not ok:
+        raise err(f"{prefix}{name} = {v!r}; allowed: a whole number >= {lo}"
+                  f"{f' ({why})' if why else ''}")
+    return int(v)
 
 
 class FieldStabilityError(RuntimeError):
@@ -78,9 +92,8 @@ class CoupledField:
     max_substeps: ClassVar[int] = 100_000
 
     def __init__(self, every: int = 1):
-        if int(every) < 1:
-            raise ValueError(f"every = {every}: a field couples every >= 1 mechanical steps")
-        self.every = int(every)
+        self.every = whole_number("every", every, 1, f"coupled field {self.kind!r}: ",
+                                  "a field couples every >= 1 mechanical steps")
         self.substeps = 0  # sub-steps taken so far (for reports)
 
     # -- to implement -------------------------------------------------------------------

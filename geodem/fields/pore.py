@@ -124,11 +124,12 @@ angle of a plane triangle, IEEE Trans. Biomed. Eng. 30(2).
 from __future__ import annotations
 
 import math
+import numbers
 
 import numpy as np
 from numba import njit
 
-from geodem.fields import CoupledField, check_substep, register_field
+from geodem.fields import CoupledField, check_substep, register_field, whole_number
 
 #: default fluid: water (K = 2.2 GPa, rho = 1000 kg/m^3 at P = 0)
 WATER_KF = 1000.0 / 2.2e9
@@ -141,6 +142,7 @@ ROLES = ("inject", "drain")
 WHERE_KEYS = ("ball", "box", "group", "boundary", "side")
 SIDES = ("xmin", "xmax", "ymin", "ymax", "zmin", "zmax")
 L_PATH_MIN = 0.25  # x (r_i + r_j): shortest throat path
+DEGENERATE_REL = 1e-9  # x d^dim: a cell of smaller area/volume is flat (refused as a pore)
 
 
 class PoreFluidError(ValueError):
@@ -524,6 +526,15 @@ def _peel(neighbors, bad):
     return out
 
 
+def _cell_measure(x, cells):
+    """Signed area (2-D) or volume (3-D) of each cell [m^2 or m^3]."""
+    p = x[cells]
+    e = p[:, 1:] - p[:, :1]
+    if cells.shape[1] == 3:
+        return 0.5 * (e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0])
+    return np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
+
+
 def _edge_ratio_max(x, r, cells, dim):
     ed = _cell_edges(dim)
     a, b = cells[:, ed[:, 0]], cells[:, ed[:, 1]]
@@ -586,13 +597,27 @@ def _check_bc(k, bc):
         raise _err(f"bcs[{k}] ({name}): where must be one of {{ball: [centre..., R]}}, "
                    f"{{box: [lo, hi]}}, {{group: NAME}}, {{boundary: true}}, {{side: xmin..}}; "
                    f"got {where!r}")
+    key, val = next(iter(where.items()))
+    if key in ("ball", "box"):
+        if key == "ball":
+            nums = list(val) if isinstance(val, (list, tuple, np.ndarray)) else [val]
+        else:
+            ok = isinstance(val, (list, tuple, np.ndarray)) and len(val) == 2 and all(
+                isinstance(v, (list, tuple, np.ndarray)) for v in val)
+            nums = [u for v in val for u in v] if ok else [val]
+        if not all(_real(u) and math.isfinite(u) for u in nums):
+            raise _err(f"bcs[{k}] ({name}): {key} = {val!r}; allowed: finite numbers [m]")
+        if key == "ball" and not nums[-1] > 0:
+            raise _err(f"bcs[{k}] ({name}): ball radius = {nums[-1]!r}; allowed: > 0 [m]")
+        if key == "box" and not all(lo <= hi for lo, hi in zip(val[0], val[1])):
+            raise _err(f"bcs[{k}] ({name}): box = {val!r}; allowed: lo <= hi on every axis [m]")
     for key in ("pressure", "rate", "t_start"):
         v = bc.get(key, 0.0)
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+        if not (_real(v) and math.isfinite(v) and v >= 0):
             raise _err(f"bcs[{k}] ({name}): {key} = {v!r}; allowed: a finite number >= 0 "
                        f"[{'Pa' if key == 'pressure' else 'Pa/s' if key == 'rate' else 's'}]")
     pm = bc.get("p_max")
-    if pm is not None and not (isinstance(pm, (int, float)) and math.isfinite(pm) and pm >= 0):
+    if pm is not None and not (_real(pm) and math.isfinite(pm) and pm >= 0):
         raise _err(f"bcs[{k}] ({name}): p_max = {pm!r}; allowed: a finite number >= 0 [Pa]")
     return {"name": str(name), "role": role, "where": dict(where),
             "pressure": float(bc.get("pressure", 0.0)), "rate": float(bc.get("rate", 0.0)),
@@ -600,10 +625,15 @@ def _check_bc(k, bc):
             "cavity": bool(bc.get("cavity", False))}
 
 
+def _real(v):
+    """A real number (Python or NumPy, any width), not a bool."""
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+
+
 def _positive(name, v, unit, allow_zero=False, allow_none=False):
     if v is None and allow_none:
         return None
-    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and \
+    ok = _real(v) and math.isfinite(v) and \
         (v >= 0 if allow_zero else v > 0)
     if not ok:
         rng = ">= 0" if allow_zero else "> 0"
@@ -640,13 +670,17 @@ class PoreField(CoupledField):
         self.k_t = _positive("k_t", k_t, "kg/(Pa s)", allow_none=True)
         self.aperture = _positive("aperture", aperture, "m", allow_zero=True, allow_none=True)
         self.viscosity = _positive("viscosity", viscosity, "Pa s")
+        if self.aperture == 0.0 and self.k_t is None:
+            raise _err("aperture = 0 without k_t: the default k_t = c_f aperture^2 w / "
+                       "(12 viscosity) would be 0 and no fluid would flow; give k_t > 0 "
+                       "[kg/(Pa s)] or aperture > 0 [m]")
         self.bond_factor = _positive("bond_factor", bond_factor, "-")
         if self.bond_factor < 1.0:
             raise _err(f"bond_factor = {bond_factor!r}; allowed: >= 1 (an intact bond "
                        "divides the throat conductance by it)")
         self.p_init = _positive("p_init", p_init, "Pa", allow_zero=True)
         if p_min is not None:
-            if not (isinstance(p_min, (int, float)) and math.isfinite(p_min)):
+            if not (_real(p_min) and math.isfinite(p_min)):
                 raise _err(f"p_min = {p_min!r}; allowed: a finite number [Pa] or null")
             if p_min > self.p_init:
                 raise _err(f"p_min = {p_min!r} exceeds p_init = {self.p_init!r}; allowed: "
@@ -667,9 +701,8 @@ class PoreField(CoupledField):
         if self.floor >= 1.0:
             raise _err(f"floor = {floor!r}; allowed: 0 < floor < 1")
         self.remesh_disp = _positive("remesh_disp", remesh_disp, "-")
-        if int(remesh_every) < 0:
-            raise _err(f"remesh_every = {remesh_every!r}; allowed: >= 0 (0 = never)")
-        self.remesh_every = int(remesh_every)
+        self.remesh_every = whole_number("remesh_every", remesh_every, 0, "", "0 = never",
+                                         _err)
         self.forces = bool(forces)
         if gap_reference not in ("initial", "zero"):
             raise _err(f"gap_reference = {gap_reference!r}; allowed: initial, zero")
@@ -734,6 +767,10 @@ class PoreField(CoupledField):
         self.r0 = st.r.copy()
         cells = self._triangulate(st.x, None)
         self._set_network(st, cells)
+        for k, b in enumerate(self.bcs):
+            if not (self.held == k).any():
+                raise _err(f"boundary condition {b['name']!r}: where = {b['where']!r} selects "
+                           "no pore (or only pores an earlier condition took); widen it")
         self._geometry(st)
         self.M = self.V * (self.k_f * self.p_init + self.c_f)
         self._hold_now(st.time)
@@ -765,7 +802,23 @@ class PoreField(CoupledField):
 
     # ------------------------------------------------------------------ network
     def _triangulate(self, x, old):
-        """Cells of a new triangulation (oriented), filtered (see the module doc)."""
+        """Cells of a new triangulation (oriented), filtered (see the module doc). Flat cells
+        (area/volume <= DEGENERATE_REL d^dim) reachable from the hull through dropped cells
+        are dropped like the slivers there; a flat cell inside the packing is refused
+        (PoreFluidError): it would be a pore of no volume, with no stable step."""
+        cells = self._triangulate_once(x, old)
+        if isinstance(cells, tuple):
+            n, vmin = cells
+            raise _err(f"the pore network is degenerate: {n} cells inside the packing are flat "
+                       f"(volume {vmin:.3g} x d^{self.dim} <= {DEGENERATE_REL:g} x d^{self.dim}, "
+                       f"d = {self.d_mean:.4g} m the mean diameter): the element centres of a "
+                       "regular lattice lie on common spheres and the triangulation is not "
+                       "unique; jitter the positions (e.g. by 1 % of d)")
+        return cells
+
+    def _triangulate_once(self, x, old):
+        """The cells, or ``(count, smallest relative volume)`` of the flat cells left inside
+        the packing."""
         from scipy.spatial import Delaunay
 
         st = self.sim.state
@@ -778,9 +831,11 @@ class PoreField(CoupledField):
         cells = idx[tri.simplices]
         cells = _orient(x, cells)
         cen = x[cells].mean(axis=1)
+        rel = np.abs(_cell_measure(x, cells)) / self.d_mean ** st.dim
+        flat = rel <= DEGENERATE_REL
         bad = (_edge_ratio_max(x, st.r, cells, st.dim) > self.edge_factor) & \
             ~self._cavity_mask(cen)
-        keep = ~_peel(tri.neighbors, bad)
+        keep = ~_peel(tri.neighbors, bad | flat)
         if old is not None and old.shape[0]:
             # cells whose vertex set existed, or whose centroid lies in an old cell, stay pores
             keep |= self._match(old, cells)[0] >= 0
@@ -788,6 +843,8 @@ class PoreField(CoupledField):
             inside = _point_in_cells(x, old, cen[~keep], cand) >= 0
             k2 = np.flatnonzero(~keep)
             keep[k2[inside]] = True
+        if (flat & keep).any():
+            return int((flat & keep).sum()), float(rel[flat & keep].min())
         cells = cells[keep]
         if cells.shape[0] == 0:
             raise _err("no pore is left after dropping the cells outside the packing "
@@ -1195,10 +1252,17 @@ class PoreField(CoupledField):
         return {"cells": self.cells, "M": self.M, "booked": self.booked,
                 "f_prev": self.f_prev, "x_mesh": self.x_mesh, "x0": self.x0, "r0": self.r0,
                 "held": self.held,
-                "books": np.array([self.M0, self.couplings, self.remeshes], float)}
+                "books": np.array([self.M0, self.couplings, self.remeshes], float),
+                "scales": np.array([self.d_mean, self.t, self.ap, self.kt], float)}
 
     def restore(self, arrays: dict) -> None:
         st = self.sim.state
+        if "scales" in arrays:
+            # the mean diameter, thickness, aperture and k_t chosen when the field was first
+            # attached: ``attach`` on resume sees the radii of now (a thermal field may have
+            # expanded them), which would shift all four (checkpoints before this: as attached)
+            sc = np.asarray(arrays["scales"], float)
+            self.d_mean, self.t, self.ap, self.kt = (float(v) for v in sc)
         self.x0 = np.array(arrays["x0"], float)
         self.r0 = np.array(arrays["r0"], float)
         self._set_network(st, arrays["cells"])

@@ -228,7 +228,7 @@ class ThermalField(CoupledField):
     unbonded_factor: conductance of a touching unbonded contact / that of a bond, >= 0.
     area_factor: multiplies every conductance (calibration of random packings), > 0.
     deposit: mechanical heat deposited into T: subset of ``viscous, break_normal,
-        break_shear, friction``.
+        break_shear, friction`` (a single name may be given as a string).
     time_scale: thermal seconds per mechanical second, > 0.
     every: couple every ``every`` mechanical steps.
     """
@@ -256,6 +256,8 @@ class ThermalField(CoupledField):
         self.fixed = _temps(fixed, "fixed")
         self.unbonded_factor = _finite(unbonded_factor, "unbonded_factor", lo=0.0)
         self.area_factor = _finite(area_factor, "area_factor", lo=0.0, strict=True)
+        if isinstance(deposit, str):  # one name, not its letters
+            deposit = (deposit,)
         bad = [d for d in deposit if d not in DEPOSIT]
         if bad:
             raise ValueError(f"thermal field: deposit {bad!r} unknown; allowed: "

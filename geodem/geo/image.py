@@ -10,6 +10,9 @@ index per pixel.
   tolerance`` (default 0: exact colours; JPEG-compressed images need ~20-40). Alpha is ignored.
 * ``values={name: value}`` (or a list of values): label images (one band); exact matches.
 * ``empty=[...]``: colours (or values) that mean "no material" (air, water): label ``-1``.
+* Colour values are whole numbers 0-255 (an integer array, or floats holding whole numbers);
+  a float image in 0..1 (matplotlib's ``imread`` of a PNG) is refused, not truncated: pass
+  ``np.round(image * 255)``. An empty image (no pixel) is refused.
 * Any other pixel -> :class:`GeometryError` listing the unmapped colours found (the most
   frequent first, with pixel counts) and the ones configured.
 
@@ -112,6 +115,9 @@ def _load(source):
 def read_labels(source, colours=None, values=None, *, tolerance=0.0, empty=None) -> LabelImage:
     """Label image from ``source`` (see the module docstring): a path or an array."""
     arr, name = _load(source)
+    if arr.size == 0 or arr.ndim < 2 or min(arr.shape[:2]) < 1:
+        raise GeometryError(f"{name}: the image is empty (shape {arr.shape}); an image needs at "
+                            "least 1 x 1 pixels")
     if (colours is None) == (values is None):
         raise GeometryError("give exactly one of colours={name: (r, g, b)} or values={name: v}")
     table = colours if colours is not None else values
@@ -126,9 +132,23 @@ def read_labels(source, colours=None, values=None, *, tolerance=0.0, empty=None)
         tol = float(tolerance)
         if not (np.isfinite(tol) and tol >= 0):
             raise GeometryError(f"tolerance must be >= 0 (0-255 colour units), got {tolerance}")
-        rgb = arr[..., :3].astype(np.int64)
+        rgb = arr[..., :3]
+        if rgb.dtype.kind == "f":
+            whole = np.isfinite(rgb) & (rgb == np.round(rgb))
+            if not whole.all():
+                lo, hi = np.nanmin(rgb), np.nanmax(rgb)
+                raise GeometryError(
+                    f"{name}: colour values must be whole numbers in 0..255; this "
+                    f"{arr.dtype} image has {int((~whole).sum())} values that are not (range "
+                    f"{lo:g} .. {hi:g}{', NaN' if np.isnan(rgb).any() else ''}). Floats in "
+                    "0..1 (e.g. from matplotlib's imread): pass np.round(image * 255)")
+        elif rgb.dtype.kind not in "iub":
+            raise GeometryError(f"{name}: colour values must be integers in 0..255, got an "
+                                f"array of {arr.dtype}")
+        rgb = rgb.astype(np.int64)
         if rgb.min() < 0 or rgb.max() > 255:
-            raise GeometryError(f"{name}: colour values must lie in 0..255")
+            raise GeometryError(f"{name}: colour values must lie in 0..255, got "
+                                f"{int(rgb.min())} .. {int(rgb.max())}")
         key = (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
         ukey, inv, cnt = np.unique(key.ravel(), return_inverse=True, return_counts=True)
         ucol = np.stack([(ukey >> 16) & 255, (ukey >> 8) & 255, ukey & 255], axis=1)
@@ -207,9 +227,9 @@ def _plane_axes(dim, plane):
 def pixel_labels(x, image: LabelImage, extent, plane="xy", outside="error") -> np.ndarray:
     """Label of each point ``x`` (N, dim) [m] (module docstring for the mapping).
 
-    Points outside ``extent`` (beyond a tolerance of ``1e-9`` x its size): ``outside="error"``
-    -> :class:`GeometryError`; ``"keep"`` -> :data:`OUTSIDE` (-2); ``"clamp"`` -> the nearest
-    edge pixel."""
+    Points outside ``extent`` (beyond a tolerance of ``1e-9`` x its size) or not finite (NaN,
+    inf): ``outside="error"`` -> :class:`GeometryError`; ``"keep"`` -> :data:`OUTSIDE` (-2);
+    ``"clamp"`` -> the nearest edge pixel (a point that is not finite has none: error)."""
     x = np.asarray(x, float)
     if x.ndim != 2 or x.shape[1] not in (2, 3):
         raise GeometryError(f"positions must have shape (N, 2) or (N, 3), got {x.shape}")
@@ -225,15 +245,24 @@ def pixel_labels(x, image: LabelImage, extent, plane="xy", outside="error") -> n
     fu = (x[:, a] - umin) / (umax - umin) * W
     fv = (vmax - x[:, b]) / (vmax - vmin) * H
     eps = 1e-9
-    out = (fu < -eps * W) | (fu > W * (1 + eps)) | (fv < -eps * H) | (fv > H * (1 + eps))
-    if out.any() and outside == "error":
-        lo, hi = x[out].min(axis=0), x[out].max(axis=0)
-        raise GeometryError(f"{int(out.sum())} of {len(x)} element centres lie outside the "
-                            f"image extent {tuple(extent)} in plane {plane!r} (they span "
-                            f"{lo.round(6).tolist()} .. {hi.round(6).tolist()}); give an extent "
-                            "covering the model or outside='keep'/'clamp'")
+    bad = ~(np.isfinite(fu) & np.isfinite(fv))  # NaN / inf positions: outside any image
+    out = bad | (fu < -eps * W) | (fu > W * (1 + eps)) | (fv < -eps * H) | (fv > H * (1 + eps))
     if outside not in ("error", "keep", "clamp"):
         raise GeometryError(f"outside must be 'error', 'keep' or 'clamp', got {outside!r}")
+    if out.any() and (outside == "error" or (outside == "clamp" and bad.any())):
+        why = []
+        if bad.any():
+            why.append(f"{int(bad.sum())} not finite (NaN or inf)")
+        if (out & ~bad).any():
+            lo, hi = x[out & ~bad].min(axis=0), x[out & ~bad].max(axis=0)
+            why.append(f"they span {lo.round(6).tolist()} .. {hi.round(6).tolist()}")
+        hint = ("a position that is not finite has no nearest pixel; outside='keep' leaves them"
+                if outside == "clamp" else
+                "give an extent covering the model or outside='keep'/'clamp'")
+        raise GeometryError(f"{int(out.sum())} of {len(x)} element centres lie outside the "
+                            f"image extent {tuple(extent)} in plane {plane!r} "
+                            f"({'; '.join(why)}); {hint}")
+    fu, fv = np.where(bad, 0.0, fu), np.where(bad, 0.0, fv)
     col = np.clip(np.floor(fu).astype(np.int64), 0, W - 1)
     row = np.clip(np.floor(fv).astype(np.int64), 0, H - 1)
     lab = image.labels[row, col].astype(np.int64)

@@ -11,9 +11,10 @@ CRS
     1``; the Norway/Svalbard exceptions are ignored); a projected raster in metres keeps its CRS;
     one in other units (feet) needs ``target_crs`` (and ``z_scale`` for its elevations).
 Nodata
-    Cells equal to the nodata value (the file's or ``nodata=``), masked by the file, or not finite
-    are filled before resampling by inverse-distance weighting of the ``k = 8`` nearest valid cells
-    on the rim of the holes: ``z = sum(w_i z_i) / sum(w_i)``, ``w_i = 1 / d_i^2`` (``d`` in
+    Cells equal to the nodata value (the file's, and ``nodata=``: an extra value, compared in the
+    raster's own data type, e.g. float32), masked by the file, or not finite are filled before
+    resampling by inverse-distance weighting of the ``k = 8`` nearest valid cells on the rim of
+    the holes: ``z = sum(w_i z_i) / sum(w_i)``, ``w_i = 1 / d_i^2`` (``d`` in
     metres on the source grid). A single hole in a plane is filled exactly (the 8 neighbours pair
     up symmetrically). ``Terrain.nodata_filled`` counts the filled source cells (in the window
     read: the region plus a margin of a few cells). All-nodata, or more than
@@ -31,8 +32,9 @@ Clipping
     ``region = (xmin, ymin, xmax, ymax)`` in the model CRS (or in ``region_crs``, e.g.
     ``"EPSG:4326"`` for lon/lat, converted with densified edges). It must lie inside the raster's
     footprint (pixel edges), else :class:`GeometryError`. Without a region the whole raster is used
-    (after reprojection: the largest axis-aligned rectangle inside the reprojected footprint, found
-    from its densified edges). Without resampling the cells whose centres span the region are
+    (after reprojection, or for a raster not stored north-up (south-up, east-to-west, turned by
+    90 or 180 degrees): the largest axis-aligned rectangle inside the footprint, found from its
+    densified edges, told apart by their coordinates). Without resampling the cells whose centres span the region are
     kept (one cell beyond each side at most); with resampling the new grid starts at the region's
     west and north edges.
 Local origin
@@ -405,6 +407,75 @@ def _densified_ring(xmin, ymin, xmax, ymax, n=21):
     return xs, ys
 
 
+def _north_up(tr, width, height):
+    """An axis-aligned raster's affine ``tr`` (``b = d = 0`` or ``a = e = 0``) turned north-up:
+    ``(affine, width, height, f)`` with ``f`` mapping a full band array (height, width) to the
+    north-up array (row 0 north, column 0 west)."""
+    from affine import Affine
+
+    a, b, c, d, e, f = tr.a, tr.b, tr.c, tr.d, tr.e, tr.f
+    steps = []
+    if a == 0 and e == 0:  # X = b row + c, Y = d col + f: rows run along x
+        steps.append(np.transpose)
+        a, b, d, e = b, 0.0, 0.0, d
+        width, height = height, width
+    if a < 0:  # columns run west
+        c, a = c + a * width, -a
+        steps.append(lambda z: z[:, ::-1])
+    if e > 0:  # rows run north
+        f, e = f + e * height, -e
+        steps.append(lambda z: z[::-1])
+
+    def turn(z):
+        for step in steps:
+            z = step(z)
+        return np.ascontiguousarray(z)
+
+    return Affine(a, 0.0, c, 0.0, e, f), width, height, turn
+
+
+def _equal_in_dtype(raw, nodata):
+    """Cells of ``raw`` equal to ``nodata`` compared in the raster's own dtype: ``-9999.9`` in
+    a float32 raster is ``float32(-9999.9)``, not the float64 ``-9999.9``. A NaN nodata
+    matches the NaN cells; a value an integer raster cannot hold (a fraction, out of range)
+    matches no cell."""
+    try:
+        v = float(nodata)
+    except (TypeError, ValueError):
+        raise GeometryError(f"nodata must be a number, got {nodata!r}") from None
+    if math.isnan(v):
+        return np.isnan(raw) if raw.dtype.kind == "f" else np.zeros(raw.shape, bool)
+    if raw.dtype.kind in "iu":
+        info = np.iinfo(raw.dtype)
+        if v != math.floor(v) or not info.min <= v <= info.max:
+            return np.zeros(raw.shape, bool)
+        return raw == raw.dtype.type(int(v))
+    with np.errstate(over="ignore"):
+        return raw == raw.dtype.type(v)
+
+
+def _inner_box(foot, n):
+    """``(xmin, ymin, xmax, ymax)`` of the axis-aligned rectangle inside a footprint ring
+    ``foot`` (4 n, 2) made of the raster's 4 edges (row 0, last column, last row, column 0; n
+    points each, in model coordinates [m]).
+
+    The edges are told apart by their coordinates, not by the raster's orientation (south-up,
+    east-to-west, rotated by 90 or 180 degrees all occur): the edge whose mean point lies
+    farthest north of the footprint's centre is the north edge, and so on. The rectangle spans
+    from the west edge's easternmost point to the east edge's westernmost, and from the south
+    edge's northernmost point to the north edge's southernmost. An empty box (``xmax <= xmin``
+    or ``ymax <= ymin``) when the edges cannot be told apart (a footprint turned by about 45
+    degrees)."""
+    edges = [foot[k * n:(k + 1) * n] for k in range(4)]
+    mid = np.array([e.mean(axis=0) for e in edges]) - foot.mean(axis=0)
+    north, south = int(np.argmax(mid[:, 1])), int(np.argmin(mid[:, 1]))
+    east, west = int(np.argmax(mid[:, 0])), int(np.argmin(mid[:, 0]))
+    if len({north, south, east, west}) != 4:
+        return (0.0, 0.0, 0.0, 0.0)
+    return (float(edges[west][:, 0].max()), float(edges[south][:, 1].max()),
+            float(edges[east][:, 0].min()), float(edges[north][:, 1].min()))
+
+
 def _fmt_box(b):
     return "x {:.10g} .. {:.10g}, y {:.10g} .. {:.10g}".format(
         *(round(float(v), 6) for v in (b[0], b[2], b[1], b[3])))
@@ -428,7 +499,8 @@ def read_elevation(path, *, crs=None, target_crs=None, resolution=None, region=N
     resampling : ``"auto"`` (average when downsampling, else bilinear) or a rasterio name.
     origin : ``"auto"`` (lower-left corner of the region), ``None`` (global coordinates) or
         ``(x0, y0[, z0])`` [m].
-    nodata : nodata value overriding the file's.
+    nodata : a further nodata value (compared in the raster's data type); the cells at the
+        file's own nodata value (or masked by it) stay nodata.
     z_scale : factor applied to the elevations (e.g. 0.3048 for feet).
     like : a :class:`Terrain`: resample onto exactly its grid, CRS and origin (for layer
         rasters and pre/post-event pairs).
@@ -512,6 +584,13 @@ def read_elevation(path, *, crs=None, target_crs=None, resolution=None, region=N
                                 "elevations not in metres")
         same_crs = t_crs == s_crs
         north_up = s_tr.b == 0 and s_tr.d == 0 and s_tr.a > 0 and s_tr.e < 0
+        axis_aligned = (s_tr.b == 0 and s_tr.d == 0) or (s_tr.a == 0 and s_tr.e == 0)
+        reorient = None
+        if same_crs and axis_aligned and not north_up:
+            # south-up, east-to-west or turned by 90/180 degrees: the cells, turned north-up
+            # in memory, are copied like those of a north-up raster (no resampling)
+            s_tr, width, height, reorient = _north_up(s_tr, width, height)
+            north_up = True
         # ---- native resolution in the target CRS, footprint
         sb = array_bounds(height, width, s_tr)  # (west, south, east, north)
         if same_crs and north_up:
@@ -552,11 +631,7 @@ def read_elevation(path, *, crs=None, target_crs=None, resolution=None, region=N
             if same_crs and north_up:
                 reg = tuple(sb)
             else:  # largest axis-aligned rectangle inside the reprojected footprint
-                n = 41
-                # ring order: north edge (row 0), east, south, west
-                top, right = foot[:n, 1], foot[n:2 * n, 0]
-                bottom, left = foot[2 * n:3 * n, 1], foot[3 * n:, 0]
-                reg = (left.max(), bottom.max(), right.min(), top.min())
+                reg = _inner_box(foot, 41)
                 if not (reg[2] > reg[0] and reg[3] > reg[1]):
                     raise GeometryError(f"{name}: cannot find a rectangle inside the raster's "
                                         f"footprint in {_crs_name(t_crs)}; give region=")
@@ -627,16 +702,23 @@ def read_elevation(path, *, crs=None, target_crs=None, resolution=None, region=N
             r0 = max(int(math.floor(ry_.min())) - pad, 0)
             r1 = min(int(math.ceil(ry_.max())) + pad, height)
             win = Window(c0, r0, max(c1 - c0, 1), max(r1 - r0, 1))
-        data = src.read(band, window=win).astype(np.float64)
-        if nodata is not None:
-            invalid = data == float(nodata)
-            nd_txt = f"nodata value {nodata}"
-        else:
+        if reorient is None:
+            raw = src.read(band, window=win)
             invalid = src.read_masks(band, window=win) == 0
-            nd_txt = ("nodata value " + repr(src.nodata)) if src.nodata is not None \
-                else "masked cells"
+        else:
+            rs_, cs_ = win.toslices()
+            raw = reorient(src.read(band))[rs_, cs_]
+            invalid = reorient(src.read_masks(band))[rs_, cs_] == 0
+        nd_txt = ("nodata value " + repr(src.nodata)) if src.nodata is not None \
+            else "masked cells"
+        if nodata is not None:
+            invalid |= _equal_in_dtype(raw, nodata)
+            same = src.nodata is None or float(src.nodata) == float(nodata)
+            nd_txt = f"nodata value {nodata}" + ("" if same else
+                                                 f" or the file's {src.nodata!r}")
+        data = raw.astype(np.float64)
         invalid |= ~np.isfinite(data)
-        w_tr = src.window_transform(win) if transform is None else \
+        w_tr = src.window_transform(win) if transform is None and reorient is None else \
             s_tr @ Affine.translation(win.col_off, win.row_off)
     # ---- nodata
     nbad = int(invalid.sum())

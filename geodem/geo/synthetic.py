@@ -13,10 +13,18 @@ with its SW corner at E 650000, N 5120000; elevations in metres above sea level)
   east edge);
 * hillside: a plateau ``R = 100`` m above the floor in the west, falling over the belt
   ``120 < x < 320`` m by a smoothstep ``S(t) = 3 t^2 - 2 t^3``, ``t = (x - 120) / 200``:
-  ``z = z_f + R (1 - S(t))``; the steepest slope is ``1.5 R / 200 = 0.75`` (36.9 deg) at
-  ``x = 220`` m;
+  ``z = z_f + R (1 - S(t))`` (alone its steepest slope would be ``1.5 R / 200 = 0.75``, 36.9
+  deg, at ``x = 220`` m);
 * a hollow in the hillside centred on ``y = 150`` m: ``- 8 exp(-((y - 150) / 60)^2) sin(pi t)``
-  for ``0 < t < 1`` (the slope is concave across, as hillslope hollows are);
+  for ``0 < t < 1`` (the slope is concave across, as hillslope hollows are). With it the
+  steepest slope along ``y = 150`` m is 38.05 deg at ``x = 207`` m (the recipe sampled every
+  1 mm); the shipped raster's steepest cell-to-cell slope is 38.0 deg, between the centres
+  ``x = 205`` and ``215`` m of the rows ``y = 145`` and ``155`` m. Measured with::
+
+      python -c "import numpy as np; from geodem.geo.synthetic import hill_elevation as h
+      x = np.linspace(100, 400, 300001); g = np.degrees(np.arctan(abs(np.gradient(
+      h(x, 150 + 0 * x), x)))); print(x[g.argmax()], g.max())"
+
 * sliding surface (``hill_slip_depth.tif``, depth below the ground, positive down): a spoon,
   ``D = D0 (27/4) u (1 - u)^2 sqrt(max(0, 1 - ((y - 150) / 60)^2))`` with ``u = (x - 130) /
   160`` for ``0 < u < 1`` (0 elsewhere), ``D0 = 20`` m: the source spans ``130 < x < 290`` m

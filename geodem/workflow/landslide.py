@@ -123,22 +123,80 @@ def read_terrains(model):
             raise err from None
         return (str(p), mt, model.crs, like)
 
+    if model.crs is not None:
+        from rasterio.crs import CRS
+        from rasterio.errors import CRSError
+
+        try:
+            CRS.from_user_input(model.crs)
+        except CRSError as exc:
+            err = GeometryError(f"{model.crs!r} is not a CRS ({exc}); allowed: an EPSG code "
+                                "(e.g. EPSG:32632), a WKT or a PROJ string")
+            err.field = "crs"
+            raise err from None
     k = key("raster")
     try:
         top = _read(*k)
     except GeometryError as exc:
-        exc.field = "raster"
-        raise
+        raise _workflow_error(exc, "raster") from None
     field = "slip_depth" if model.slip_depth is not None else "slip_surface"
     ks = key(field, k)
     try:
         other = _read(*ks)
     except GeometryError as exc:
-        exc.field = field
-        raise
+        raise _workflow_error(exc, field) from None
     if field == "slip_depth":
         return top, Depth(other)
     return top, slip_surface_from_pair(top, other)
+
+
+#: hints of :func:`geodem.geo.read_elevation` naming its arguments (the workflow has no such
+#: fields) -> what to do in a workflow
+_HINTS = (
+    ("pass band=k to choose one", "extract the elevation band first (e.g. gdal_translate -b 1 "
+                                  "in.tif dem.tif)"),
+    ("give target_crs= (a projected CRS in metres) and z_scale= for elevations not in metres",
+     "convert it first to a projected CRS in metres, elevations in metres (e.g. gdalwarp "
+     "-t_srs EPSG:32632 in.tif dem.tif; feet: gdal_calc.py --calc='A*0.3048')"),
+    ("give it with crs=..., e.g. crs='EPSG:32633'", "give it with model.crs, e.g. EPSG:32632"),
+    ("give transform=(dx, 0, west, 0, -dy, north)",
+     "georeference it first (e.g. gdal_translate -a_srs EPSG:32632 -a_ullr west north east "
+     "south in.tif dem.tif)"),
+    ("; give region=", "; crop or convert it first (e.g. gdalwarp -t_srs EPSG:32632 -te xmin "
+                       "ymin xmax ymax in.tif dem.tif)"),
+    (" (max_nodata_fraction); choose a region inside the valid data",
+     "; crop it to the valid data first (e.g. gdalwarp -te xmin ymin xmax ymax in.tif "
+     "dem.tif)"),
+    ("; choose a region inside it", "; this raster must cover the elevation raster (model."
+                                    "raster)"),
+)
+
+
+def _workflow_error(exc, field):
+    """A GeometryError of :func:`read_elevation` for the workflow field ``field``: its hints
+    rewritten to say what to do in a workflow (:data:`_HINTS`)."""
+    from geodem.geo import GeometryError
+
+    msg = str(exc)
+    for old, new in _HINTS:
+        msg = msg.replace(old, new)
+    if field != "raster" and "the requested region" in msg:
+        msg = msg.replace("the requested region", "the elevation raster's grid")
+    err = GeometryError(msg)
+    err.field = getattr(exc, "field", field) if field == "raster" else field
+    return err
+
+
+def _num(v) -> str:
+    return f"{float(v):g}"
+
+
+def _pt(p) -> str:
+    return "[" + ", ".join(_num(v) for v in p) + "]"
+
+
+def _box(b) -> str:
+    return f"x {_num(b[0])} .. {_num(b[2])}, y {_num(b[1])} .. {_num(b[3])}"
 
 
 # ============================================================================ model
@@ -219,13 +277,95 @@ class Landslide(ModelBase):
         return self.diameter / self.scale
 
     def _lattice(self):
-        """The model's lattice version (fast): geometry, base level, element-count estimate."""
-        from geodem.geo import terrain_model
+        """The model's lattice version (fast): geometry, base level, element-count estimate.
+        GeometryError with ``.field`` (a field of this model) on bad input."""
+        from geodem.geo import GeometryError, terrain_model
 
         top, slip = read_terrains(self)
-        return top, slip, terrain_model(
-            top, self.d, base_depth=self.base_depth, dim=self.dim, body="ground",
-            line=self.line, extent=self.extent, sliding_surface=slip)
+        self._check_geometry(top)
+        try:
+            return top, slip, terrain_model(
+                top, self.d, base_depth=self.base_depth, dim=self.dim, body="ground",
+                line=self.line, extent=self.extent, sliding_surface=slip)
+        except GeometryError as exc:
+            raise self._model_error(exc, top) from None
+
+    def _check_geometry(self, top):
+        """``extent`` and ``line`` against the raster (local m), before terrain_model."""
+        from geodem.geo import GeometryError
+
+        def fail(field, msg):
+            err = GeometryError(msg)
+            err.field = field
+            return err
+
+        gb = top.grid_bounds
+        area = f"{_box(gb)} (local m from the raster's SW corner)"
+        if self.extent is not None:
+            e = [float(v) for v in self.extent]
+            if not all(map(math.isfinite, e)) or not (e[2] > e[0] and e[3] > e[1]):
+                raise fail("extent", f"{_pt(e)} is not [xmin, ymin, xmax, ymax] with xmax > "
+                                     "xmin and ymax > ymin (finite, local m)")
+            tol = 1e-9 * max(gb[2] - gb[0], gb[3] - gb[1])
+            if (e[0] < gb[0] - tol or e[1] < gb[1] - tol or e[2] > gb[2] + tol
+                    or e[3] > gb[3] + tol):
+                raise fail("extent", f"{_pt(e)} is not covered by the raster; allowed: inside "
+                                     f"{area}")
+            ext = tuple(e)
+        else:
+            ext = tuple(top.extent)
+        if self.dim == 2 and self.line is not None:
+            p = np.asarray(self.line, float)
+            if not np.all(np.isfinite(p)):
+                raise fail("line", f"{[_pt(q) for q in p]} has coordinates that are not finite")
+            length = float(np.linalg.norm(p[1] - p[0]))
+            if not length > 0:
+                raise fail("line", f"the two points are the same ({_pt(p[0])}): the section "
+                                   "has zero length; allowed: two distinct points [[x0, y0], "
+                                   "[x1, y1]] [m]")
+            where = (area if self.extent is None
+                     else f"the model's extent {_box(ext)} (local m)")
+            for q in p:
+                if not (ext[0] - 1e-9 * length <= q[0] <= ext[2] + 1e-9 * length
+                        and ext[1] - 1e-9 * length <= q[1] <= ext[3] + 1e-9 * length):
+                    raise fail("line", f"end {_pt(q)} lies outside {where}; allowed: points "
+                                       "inside it")
+
+    def _model_error(self, exc, top):
+        """A GeometryError of terrain_model (whose messages name its own arguments) for the
+        workflow field it is about."""
+        from geodem.geo import GeometryError
+
+        msg = str(exc)
+        if "shorter than one element" in msg or "narrower than one element" in msg:
+            field = "diameter"
+            size = msg.split(" is ")[0].replace("the section (", "the section (line: ")
+            msg = (f"d = diameter / scale = {self.d:g} m is larger than {size}; allowed: d "
+                   "smaller than the model")
+        elif "elements (> max_elements" in msg:
+            n = msg.split("hold ")[1].split(" ")[0]
+            limit = msg.split("max_elements = ")[1].split(")")[0]
+            relief = float(top.z.max() - top.z.min())
+            field = "base_depth" if self.base_depth > relief else "scale"
+            msg = (f"the model would hold {n} elements (more than {limit}); use larger "
+                   f"elements (diameter / scale: d = {self.d:g} m now; x2 in d divides the "
+                   f"count by ~{2 ** self.dim}), a smaller base_depth ({self.base_depth:g} m "
+                   f"now, the ground's relief is {relief:.4g} m) or a smaller model (line / "
+                   "extent)")
+        elif "base_depth" in msg:
+            field = "base_depth"
+        elif "has no element" in msg:
+            field = "line" if self.dim == 2 else "extent"
+            msg = "the model has no element: the line / extent holds no ground"
+        elif "line" in msg:
+            field = "line"
+        elif "extent" in msg:
+            field = "extent"
+        else:
+            field = getattr(exc, "field", "raster")
+        err = GeometryError(msg)
+        err.field = field
+        return err
 
     def n_elements(self):
         try:
@@ -287,7 +427,7 @@ class Landslide(ModelBase):
     def build(self, cfg):
         from geodem.build import packing
         from geodem.core import groups as grp
-        from geodem.geo import GeometryError, terrain_model
+        from geodem.geo import GeometryError
 
         try:
             top, slip, lat = self._lattice()
@@ -317,8 +457,9 @@ class Landslide(ModelBase):
             rep = packing.deposit(dep)
             s = grp.members(dep, "sample")
             px, pr = dep.x[s] + lo, dep.r[s].copy()
-            model = terrain_model(top, d, base_z=zb, dim=dim, body="ground", line=self.line,
-                                  extent=self.extent, sliding_surface=slip, packing=(px, pr))
+            model = self._terrain_model(top, d, base_z=zb, dim=dim, body="ground",
+                                        line=self.line, extent=self.extent,
+                                        sliding_surface=slip, packing=(px, pr))
             mats = {"ground": gm, "slide": sm}
         else:
             model, mats, graded = self._graded(top, slip, lat, lo, hi, zb, seed, gm, sm)
@@ -363,13 +504,22 @@ class Landslide(ModelBase):
         return BuiltModel(st, st.x.copy(), float((model.info["top_max"] - zb) / d), info)
 
 
+    def _terrain_model(self, top, d, **kw):
+        """terrain_model; its GeometryError as a BuildError naming the workflow field."""
+        from geodem.geo import GeometryError, terrain_model
+
+        try:
+            return terrain_model(top, d, **kw)
+        except GeometryError as exc:
+            err = self._model_error(exc, top)
+            raise BuildError((err.field,), str(err)) from None
+
     def _graded(self, top, slip, lat, lo, hi, zb, seed, gm, sm):
         """The graded model (``coarsen``): a graded packing of the box (fine band along the
         ground and around the slide, coarser below), cut by the terrain; base and side groups
         two and one of each element's own nominal diameters thick; element parameters at each
         element's nominal diameter (:func:`geodem.build.graded.scale_params`)."""
         from geodem.build.graded import graded_packing, scale_params
-        from geodem.geo import terrain_model
 
         d, c = self.d, self.coarsen
         size = self._size_field(top, slip, lat)
@@ -377,10 +527,11 @@ class Landslide(ModelBase):
             px, pr, dn, rep = graded_packing(lo, hi, size, d, self.distri_rate, seed=seed)
         except ValueError as exc:
             raise BuildError(("coarsen",), str(exc)) from None
-        model = terrain_model(top, d, base_z=zb, dim=self.dim, body="ground", line=self.line,
-                              extent=self.extent, sliding_surface=slip, packing=(px, pr),
-                              base_thickness=np.maximum(2.0 * dn, 2.0 * d),
-                              side_width=np.maximum(dn, d))
+        model = self._terrain_model(top, d, base_z=zb, dim=self.dim, body="ground",
+                                    line=self.line, extent=self.extent, sliding_surface=slip,
+                                    packing=(px, pr),
+                                    base_thickness=np.maximum(2.0 * dn, 2.0 * d),
+                                    side_width=np.maximum(dn, d))
         dk = dn[model.info["packing_index"]]
         mats = {"ground": scale_params(gm, d, dk), "slide": scale_params(sm, d, dk)}
         fine = dk <= d * rep["scale"] * (1.0 + 1e-9)

@@ -168,3 +168,48 @@ def test_default_landslide(tmp_path):
     assert r["final_mean_speed"] < 0.05 * r["max_velocity"] and r["lost_elements"] == 0
     assert r["com_ratio"] >= r["slide_friction"]
     assert r["runout_m"] > 50 and r["displaced_elements"] >= 0.9 * r["slide_elements"]
+
+
+@pytest.mark.parametrize("sets, expected", [
+    (["model.line=[[0,150],[700,150]]"],
+     "model.line: end [700, 150] lies outside x 0 .. 600, y 0 .. 300 (local m from the "
+     "raster's SW corner); allowed: points inside it"),
+    (["model.line=[[10,150],[10,150]]"],
+     "model.line: the two points are the same ([10, 150]): the section has zero length"),
+    (["model.crs=NOTACRS"], "model.crs: 'NOTACRS' is not a CRS"),
+    (["model.dim=3", "model.extent=[0,0,900,300]"],
+     "model.extent: [0, 0, 900, 300] is not covered by the raster; allowed: inside x 0 .. 600, "
+     "y 0 .. 300"),
+    (["model.diameter=5000"],
+     "model.diameter: d = diameter / scale = 5000 m is larger than the section (line: 600 m)"),
+    (["model.base_depth=100000"],
+     "model.base_depth: the model would hold 7681882 elements (more than 2000000); use larger "
+     "elements (diameter / scale: d = 3 m now"),
+])
+def test_geometry_errors_name_the_workflow_field(sets, expected):
+    args = ["validate", str(WF)]
+    for s in sets:
+        args += ["--set", s]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2, res.output
+    out = " ".join(res.output.split())
+    assert expected in out
+    assert "model.raster" not in out and "np.float64" not in out and "max_elements" not in out
+
+
+def test_raster_hints_name_what_to_do_in_the_workflow(tmp_path):
+    import rasterio
+
+    from geodem.geo.raster import read_elevation
+
+    t = read_elevation(HILL)
+    p = tmp_path / "three.tif"
+    with rasterio.open(p, "w", driver="GTiff", width=t.nx, height=t.ny, count=3,
+                       dtype="float64", crs="EPSG:32632", transform=t.transform) as dst:
+        for k in (1, 2, 3):
+            dst.write(t.z, k)
+    res = CliRunner().invoke(app, ["validate", str(WF), "--set", f"model.raster={p}"])
+    assert res.exit_code == 2
+    out = " ".join(res.output.split())
+    assert "model.raster:" in out and "extract the elevation band first (e.g. gdal_translate " \
+        "-b 1 in.tif dem.tif)" in out and "band=" not in out

@@ -67,6 +67,14 @@ def test_every_must_be_positive():
         Decay(every=0)
 
 
+@pytest.mark.parametrize("every", [1.5, float("nan"), True, "2"])
+def test_every_must_be_a_whole_number(every):
+    # 1.5 was truncated to 1, NaN gave "cannot convert float NaN to integer"
+    with pytest.raises(ValueError, match=r"'_test_decay': every = .*allowed: a whole number >= 1"):
+        Decay(every=every)
+    assert Decay(every=np.int64(3)).every == 3 and Decay(every=4.0).every == 4
+
+
 def test_checkpoint_restores_the_field_bit_identically(tmp_path):
     a = _sim()
     a.add_field(Decay(k=50.0, every=2))

@@ -134,3 +134,44 @@ def test_assign_groups_3d_plan_with_only():
     assert np.array_equal(st.group_mask("west"), upper & (st.x[:, 0] < 2.0))
     assert np.array_equal(st.group_mask("east"), upper & (st.x[:, 0] >= 2.0))
     assert int(st.group_mask("base").sum()) == 16
+
+
+def test_float_colour_arrays_and_empty_images():
+    img = two_band_image()
+    cols = {"soil": RED, "rock": BLUE, "air": WHITE}
+    # floats holding whole numbers read like the integer image
+    assert read_labels(img.astype(float), colours=cols).counts == \
+        read_labels(img, colours=cols).counts == {"soil": 11, "rock": 12, "air": 1,
+                                                 "(empty)": 0}
+    # floats in 0..1 (matplotlib's imread) are refused, not truncated to black
+    with pytest.raises(GeometryError, match=r"<array>: colour values must be whole numbers in "
+                                            r"0\.\.255; this float64 image has 23 values that "
+                                            r"are not \(range 0 \.\. 1\)\. Floats in 0\.\.1"):
+        read_labels(img / 255.0, colours={"black": (0, 0, 0), **cols})
+    nan = img.astype(float)
+    nan[1, 1, 0] = np.nan
+    with pytest.raises(GeometryError, match=r"has 1 values that are not \(range 0 \.\. 255, "
+                                            r"NaN\)"):
+        read_labels(nan, colours=cols)
+    with pytest.raises(GeometryError, match=r"colour values must lie in 0\.\.255, got -1 \.\. "
+                                            r"255"):
+        read_labels(img.astype(int) - (img == 0), colours=cols)
+    for shape in ((0, 5, 3), (4, 0), (0,)):
+        with pytest.raises(GeometryError, match=r"the image is empty \(shape \(" + str(shape[0])):
+            read_labels(np.zeros(shape, np.uint8), colours=cols)
+        with pytest.raises(GeometryError, match="the image is empty"):
+            read_labels(np.zeros(shape, np.uint8), values={"a": 0})
+
+
+def test_positions_that_are_not_finite_lie_outside():
+    li = read_labels(np.array([[0, 1, 2], [3, 4, 5]]), values={str(k): k for k in range(6)})
+    pts = np.array([[0.5, 0.5], [np.nan, 0.5], [4.0, 1.0]])
+    with pytest.raises(GeometryError, match=r"2 of 3 element centres lie outside the image "
+                                            r"extent \(0, 0, 3, 2\) in plane 'xy' \(1 not finite "
+                                            r"\(NaN or inf\); they span \[4\.0, 1\.0\] \.\. "
+                                            r"\[4\.0, 1\.0\]\)"):
+        pixel_labels(pts, li, (0, 0, 3, 2))
+    assert pixel_labels(pts, li, (0, 0, 3, 2), outside="keep").tolist() == [3, OUTSIDE, OUTSIDE]
+    with pytest.raises(GeometryError, match="not finite has no nearest pixel"):
+        pixel_labels(pts, li, (0, 0, 3, 2), outside="clamp")
+    assert pixel_labels(pts[[0, 2]], li, (0, 0, 3, 2), outside="clamp").tolist() == [3, 5]

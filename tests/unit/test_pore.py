@@ -119,7 +119,7 @@ def test_tetrahedron_pore_volume_and_closed_forces():
     x = np.array([[0, 0, 0], [a, 0, 0], [a / 2, a * math.sqrt(3) / 2, 0],
                   [a / 2, a * math.sqrt(3) / 6, a * math.sqrt(2.0 / 3.0)]])
     sim = _fixed_sim(x, 0.5 * a)
-    f = PoreField(aperture=0.0)
+    f = PoreField(aperture=0.0, k_t=1e-6)  # no throat: k_t unused, but required
     sim.add_field(f)
     assert f.cells.shape == (1, 4)
     omega = 3 * math.acos(1.0 / 3.0) - math.pi  # solid angle at a vertex of a regular tet
@@ -303,3 +303,104 @@ def test_three_d_network_conserves_mass_and_closes_forces():
     st.x += rng.uniform(-0.15, 0.15, st.x.shape) * D
     rep = f.remesh(sim)
     assert rep["lost"] > 0 and f.mass_balance_error() < 1e-12
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_resume_with_thermal_expansion_is_bit_identical(tmp_path, dim):
+    """Thermal expansion changes the radii before the checkpoint: on resume the pore field
+    keeps the mean diameter, thickness, aperture and k_t of its first attach."""
+    from geodem.build.lattice import fcc_lattice
+    from geodem.core import groups
+    from geodem.fields.thermal import ThermalField
+
+    def make():
+        rng = np.random.default_rng(0)
+        x = triangular_lattice(10, 8, D) if dim == 2 else fcc_lattice(4, 3, 3, D)
+        x = x + rng.uniform(-0.05, 0.05, x.shape) * D
+        st = bonded_state(x, 0.5 * D, density=2500.0, kn=2e8, ks=8e7, xb=1e-4 * D, fs0=1e2,
+                          mu=0.5, gap=0.2 * D)
+        groups.add_group(st, "hot", st.x[:, 0] < st.x[:, 0].min() + 0.5 * D)
+        sim = Simulation(st, backend="numba")
+        sim.add_field(ThermalField(k=3.0, c=800.0, alpha=2e-4, fixed={"hot": 700.0}, ramp=5.0,
+                                   unbonded_factor=0.3, time_scale=1e4))
+        sim.add_field(PoreField(k_f=OIL_KF, c_f=OIL_CF, remesh_every=7,
+                                bcs=[{"name": "inj", "where": {"group": "hot"},
+                                      "pressure": 1e5, "rate": 1e9}]))
+        return sim
+
+    a = make()
+    a.run(100)
+    assert a.state.r.mean() > 0.5 * D * (1 + 1e-4)  # expanded before the checkpoint
+    a.save(tmp_path / "c.npz")
+    b = Simulation.load(tmp_path / "c.npz", backend="numba")
+    fa, fb = a.field("pore_fluid"), b.field("pore_fluid")
+    assert (fb.d_mean, fb.t, fb.ap, fb.kt) == (fa.d_mean, fa.t, fa.ap, fa.kt)
+    assert fb.d_mean == pytest.approx(D, rel=1e-12)
+    assert fb.ap == pytest.approx(0.002 * D, rel=1e-12)
+    a.run(200)
+    b.run(200)
+    assert np.array_equal(a.state.x, b.state.x) and np.array_equal(a.state.v, b.state.v)
+    assert np.array_equal(fa.M, fb.M) and np.array_equal(fa.cells, fb.cells)
+    assert np.array_equal(a.field("thermal").T, b.field("thermal").T)
+    assert len(a.cracks["i"]) == len(b.cracks["i"])
+
+
+def _fcc_state(jitter=0.0):
+    from geodem.build.lattice import fcc_lattice
+
+    x = fcc_lattice(4, 3, 3, D)
+    x = x + np.random.default_rng(0).uniform(-jitter, jitter, x.shape) * D
+    return bonded_state(x, 0.5 * D, density=2500.0, kn=2e8, ks=8e7, xb=1e-3 * D, fs0=1e4,
+                        mu=0.5, gap=0.2 * D)
+
+
+def test_flat_cells_of_a_regular_lattice_are_refused_as_a_degenerate_network():
+    # cospherical FCC centres: qhull leaves zero-volume tetrahedra inside the packing (before:
+    # a stability bound of 4.8e-14 s, or a ZeroDivisionError with aperture = 0)
+    with pytest.raises(PoreFluidError, match="pore_fluid.*degenerate: 2 cells inside the "
+                                             "packing are flat.*jitter"):
+        Simulation(_fcc_state()).add_field(PoreField(k_f=OIL_KF, c_f=OIL_CF))
+    sim = Simulation(_fcc_state(jitter=0.01))  # a jittered lattice: every pore has volume
+    f = PoreField(k_f=OIL_KF, c_f=OIL_CF)
+    sim.add_field(f)
+    assert f.V.min() > 0.0 and f.mechanical_dt_bound(sim) > sim.state.dt
+
+
+def test_aperture_zero_needs_an_explicit_k_t():
+    with pytest.raises(PoreFluidError, match="aperture = 0 without k_t.*give k_t > 0"):
+        PoreField(aperture=0.0)
+    assert PoreField(aperture=0.0, k_t=1e-6).k_t == 1e-6
+
+
+@pytest.mark.parametrize("where, what", [
+    ({"ball": [0.0, 0.0, float("nan")]}, r"ball = \[0.0, 0.0, nan\]; allowed: finite"),
+    ({"ball": [0.0, 0.0, -1.0]}, "ball radius = -1.0; allowed: > 0"),
+    ({"box": [[0.0, 0.0], [float("inf"), 1.0]]}, "box = .*allowed: finite"),
+    ({"box": [[0.0, 1.0], [1.0, 0.0]]}, "box = .*lo <= hi"),
+])
+def test_bad_ball_and_box_numbers_are_refused(where, what):
+    with pytest.raises(PoreFluidError, match=f"pore_fluid.*bcs\\[0\\] \\(out\\): {what}"):
+        PoreField(bcs=[{"name": "out", "role": "drain", "where": where}])
+
+
+def test_a_boundary_condition_selecting_no_pore_is_refused():
+    from geodem.core import groups
+
+    st = _bonded_lattice(8, 6)
+    groups.add_group(st, "empty", np.zeros(st.n, bool))
+    for where in ({"group": "empty"}, {"ball": [5.0, 5.0, 0.001]}):
+        with pytest.raises(PoreFluidError, match="pore_fluid.*condition 'd'.*selects no pore"):
+            Simulation(st).add_field(PoreField(k_f=OIL_KF, c_f=OIL_CF, bcs=[
+                {"name": "d", "role": "drain", "where": where}]))
+
+
+def test_number_types_booleans_and_whole_numbers():
+    f = PoreField(k_f=np.float32(OIL_KF), c_f=np.float32(870.0), remesh_every=np.int64(3),
+                  bcs=[{"where": {"boundary": True}, "pressure": np.float32(2.0)}])
+    assert f.k_f == float(np.float32(OIL_KF)) and f.remesh_every == 3
+    assert f.bcs[0]["pressure"] == 2.0
+    with pytest.raises(PoreFluidError, match=r"bcs\[0\] \(bc0\): pressure = True; allowed"):
+        PoreField(bcs=[{"where": {"boundary": True}, "pressure": True}])
+    for v in (1.5, float("nan"), -1):
+        with pytest.raises(PoreFluidError, match="remesh_every = .*allowed: a whole number >= 0"):
+            PoreField(remesh_every=v)

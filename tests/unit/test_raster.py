@@ -269,3 +269,67 @@ def test_save_roundtrip_and_from_function(tmp_path):
     t.save(tmp_path / "t.tif")
     back = read_elevation(tmp_path / "t.tif", origin=None)
     assert np.array_equal(back.z, t.z) and back.transform == t.transform and back.epsg == 32633
+
+
+@pytest.mark.parametrize("name, tr, flip", [
+    # south-up (e > 0): row 0 is the south edge
+    ("south_up", (DX, 0.0, X0, 0.0, DX, Y0 - NY * DX), lambda z: z[::-1]),
+    # east-to-west (a < 0): column 0 is the east edge
+    ("east_to_west", (-DX, 0.0, X0 + NX * DX, 0.0, -DX, Y0), lambda z: z[:, ::-1]),
+    # turned by 180 degrees
+    ("rot180", (-DX, 0.0, X0 + NX * DX, 0.0, DX, Y0 - NY * DX), lambda z: z[::-1, ::-1]),
+    # turned by 90 degrees: X = dx row + west, Y = north - dx col (the array is transposed)
+    ("rot90", (0.0, DX, X0, -DX, 0.0, Y0), lambda z: z.T),
+])
+def test_default_region_of_rasters_not_stored_north_up(tmp_path, name, tr, flip):
+    X, Y = centres()
+    z = plane(X, Y)
+    path = write(tmp_path / f"{name}.tif", flip(z), transform=rasterio.Affine(*tr))
+    t = read_elevation(path)
+    # the whole raster, on the north-up grid, the plane reproduced at every cell
+    assert t.z.shape == (NY, NX) and t.dx == DX and t.dy == DX
+    assert t.transform == pytest.approx((DX, 0.0, X0, 0.0, -DX, Y0), abs=1e-6)
+    assert t.extent == pytest.approx((0.0, 0.0, NX * DX, NY * DX), abs=1e-6)
+    assert t.edge_filled == 0 and t.nodata_filled == 0
+    # the cells are copied, not resampled: the plane reproduced exactly
+    assert t.resampling == "none" and np.array_equal(t.z, z)
+    # an explicit region clips the same cells as in the north-up raster
+    reg = (X0 + 22.0, Y0 - 95.0, X0 + 71.0, Y0 - 31.0)
+    assert np.array_equal(read_elevation(path, region=reg).z, z[2:10, 1:8])
+
+
+def test_default_region_of_a_south_up_geographic_raster(tmp_path):
+    lon0, lat0, n, dla = 14.0, 46.0, 30, 1e-4
+    dlo = dla / math.cos(math.radians(lat0 + 0.5 * n * dla))
+    j, i = np.mgrid[0:n, 0:n]
+    z = 1000.0 + 20.0 * i - 30.0 * j
+    north = read_elevation(write(tmp_path / "n.tif", z, from_origin(lon0, lat0 + n * dla, dlo,
+                                                                    dla), crs="EPSG:4326"))
+    south = read_elevation(write(tmp_path / "s.tif", z[::-1],
+                                 rasterio.Affine(dlo, 0.0, lon0, 0.0, dla, lat0),
+                                 crs="EPSG:4326"))
+    assert south.epsg == north.epsg == 32633
+    assert south.z.shape == north.z.shape and south.extent == pytest.approx(north.extent)
+    assert np.max(np.abs(south.z - north.z)) < 1e-6
+
+
+def test_nodata_override_compared_in_the_rasters_dtype(tmp_path):
+    X, Y = centres()
+    z = plane(X, Y).astype(np.float32)
+    z[3, 4] = -9999.9  # float32(-9999.9) != -9999.9 in float64
+    z[6, 6] = -32768.0  # the file's own nodata value
+    path = write(tmp_path / "f32.tif", z, nodata=-32768.0)
+    t = read_elevation(path, nodata=-9999.9)
+    exact = plane(X, Y)
+    # both the override and the file's own nodata cells are filled (single holes in a plane)
+    assert t.nodata_filled == 2
+    assert t.z[3, 4] == pytest.approx(exact[3, 4], abs=1e-3)
+    assert t.z[6, 6] == pytest.approx(exact[6, 6], abs=1e-3)
+    # an integer raster: a value it cannot hold matches no cell, an integral one matches
+    zi = np.round(plane(X, Y)).astype(np.int16)
+    zi[2, 2] = -500
+    pi = write(tmp_path / "i16.tif", zi)
+    assert read_elevation(pi, nodata=-500.5).nodata_filled == 0
+    assert read_elevation(pi, nodata=-500).nodata_filled == 1
+    with pytest.raises(GeometryError, match="nodata must be a number, got 'x'"):
+        read_elevation(pi, nodata="x")

@@ -94,3 +94,18 @@ def test_sliding_surface_from_a_depth_raster():
     assert np.array_equal(m.masks["slide"], m.x[:, 2] > 10.0 - d_at)
     xs = m.x[m.masks["slide"], 0]
     assert xs.min() > 2.0 and m.masks["slide"].sum() > 20
+
+
+def test_steepest_slope_quoted_in_the_docs_is_measured():
+    from pathlib import Path
+
+    import geodem.geo.synthetic as syn
+
+    x = np.linspace(100.0, 400.0, 300001)
+    g = np.degrees(np.arctan(np.abs(np.gradient(syn.hill_elevation(x, 150.0 + 0 * x), x))))
+    assert x[g.argmax()] == pytest.approx(207.1, abs=0.05)
+    assert g.max() == pytest.approx(38.05, abs=0.005)
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "landslide.md").read_text()
+    for text in (syn.__doc__, doc):
+        flat = " ".join(text.split())
+        assert "38.05 deg at ``x = 207`` m" in flat or "38.05 deg at `x = 207` m" in flat

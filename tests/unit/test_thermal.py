@@ -304,3 +304,12 @@ def test_effective_conductivity_of_a_lattice_strip():
     height = (nrow - 1) * math.sqrt(3) / 2 * d + d
     expect = (3 * nrow - 1) / (3 * nrow) * nrow * math.sqrt(3) / 2 * d / height
     assert out["ratio"] == pytest.approx(expect, rel=0.02)
+
+
+def test_deposit_given_as_one_string_is_one_name():
+    from geodem.fields.thermal import ThermalField
+
+    # before: iterated letter by letter ("deposit ['v', 'i', ...] unknown")
+    assert ThermalField(k=3.0, c=800.0, deposit="viscous").deposit == ("viscous",)
+    with pytest.raises(ValueError, match=r"deposit \['heat'\] unknown"):
+        ThermalField(k=3.0, c=800.0, deposit="heat")
