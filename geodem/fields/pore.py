@@ -806,19 +806,6 @@ class PoreField(CoupledField):
         (area/volume <= DEGENERATE_REL d^dim) reachable from the hull through dropped cells
         are dropped like the slivers there; a flat cell inside the packing is refused
         (PoreFluidError): it would be a pore of no volume, with no stable step."""
-        cells = self._triangulate_once(x, old)
-        if isinstance(cells, tuple):
-            n, vmin = cells
-            raise _err(f"the pore network is degenerate: {n} cells inside the packing are flat "
-                       f"(volume {vmin:.3g} x d^{self.dim} <= {DEGENERATE_REL:g} x d^{self.dim}, "
-                       f"d = {self.d_mean:.4g} m the mean diameter): the element centres of a "
-                       "regular lattice lie on common spheres and the triangulation is not "
-                       "unique; jitter the positions (e.g. by 1 % of d)")
-        return cells
-
-    def _triangulate_once(self, x, old):
-        """The cells, or ``(count, smallest relative volume)`` of the flat cells left inside
-        the packing."""
         from scipy.spatial import Delaunay
 
         st = self.sim.state
@@ -844,7 +831,12 @@ class PoreField(CoupledField):
             k2 = np.flatnonzero(~keep)
             keep[k2[inside]] = True
         if (flat & keep).any():
-            return int((flat & keep).sum()), float(rel[flat & keep].min())
+            raise _err(f"the pore network is degenerate: {int((flat & keep).sum())} cells inside "
+                       f"the packing are flat (volume {float(rel[flat & keep].min()):.3g} x "
+                       f"d^{self.dim} <= {DEGENERATE_REL:g} x d^{self.dim}, d = {self.d_mean:.4g} "
+                       "m the mean diameter): the element centres of a regular lattice lie on "
+                       "common spheres and the triangulation is not unique; jitter the positions "
+                       "(e.g. by 1 % of d)")
         cells = cells[keep]
         if cells.shape[0] == 0:
             raise _err("no pore is left after dropping the cells outside the packing "
