@@ -256,9 +256,8 @@ class Simulation:
             # a fresh model: evaluate the initial forces so the first step starts from a = F/m
             # (dt = 0 changes no velocity and no spring); bonds already beyond their strength
             # break now and are logged at time 0
-            state.dx[:] = 0.0
             self.backend.attach(state)
-            self.backend.force(0.0, broken_code(0, 1), broken_code(0, 2))
+            self.refresh_forces()
         else:
             self.backend.attach(state)
         self._harvest()
@@ -491,11 +490,20 @@ class Simulation:
         self.backend.push(("cstate",))
         if n:
             s.q_break_n += e_before - np.asarray(self.backend.elastic_energy())
-            s.dx.fill(0.0)
-            self.backend.push(("q_break_n", "dx"))
-            self.backend.force(0.0, broken_code(s.step, 1), broken_code(s.step, 2))
+            self.refresh_forces(push=("q_break_n",))
             self._harvest()
         return n
+
+    def refresh_forces(self, push=()) -> None:
+        """Evaluate the forces again at the current positions, between steps: ``dx = 0`` and
+        ``dt = 0``, so no velocity, spring or heat changes, and the next velocity-Verlet step
+        starts from ``a = F(x) / m`` of the model as it now is (after a cut, new radii, ...).
+        A bond already beyond its strength breaks now, at the current step. ``push``: host
+        changes to send to the backend first."""
+        s = self.state
+        s.dx.fill(0.0)
+        self.backend.push(("dx",) + tuple(push))
+        self.backend.force(0.0, broken_code(s.step, 1), broken_code(s.step, 2))
 
     def crack_log(self) -> np.ndarray:
         """Structured array of cracks ``(i, j, time, type)``; type 1 tensile, 2 shear, 0 joint."""

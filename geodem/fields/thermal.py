@@ -74,7 +74,6 @@ import numba
 import numpy as np
 from numba import prange
 
-from geodem.core.state import broken_code
 from geodem.fields import CoupledField, FieldStabilityError, check_substep, register_field
 
 DEPOSIT = {"viscous": "q_visc", "break_normal": "q_break_n", "break_shear": "q_break_s",
@@ -427,9 +426,7 @@ class ThermalField(CoupledField):
         # the stored accelerations belong to the old radii: evaluate the forces again at the
         # same positions (dx = 0 and dt = 0: no velocity, spring or heat changes), so the next
         # velocity-Verlet step starts from F(x, R_new) (without it the books drift by ~1e-2)
-        st.dx.fill(0.0)
-        b.push(("dx", "w_ext"))  # the booked work too: a device must see it before the pass
-        b.force(0.0, broken_code(st.step, 1), broken_code(st.step, 2))
+        sim.refresh_forces(push=("w_ext",))  # the booked work too: a device must see it first
         return float(self._ebuf.sum())
 
     # ------------------------------------------------------------------ results
