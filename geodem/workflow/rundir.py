@@ -129,6 +129,7 @@ class RunDir:
         the other entries are left in ``self.kept``."""
         p = self.path
         self.kept = []
+        self.resume_from, self.damaged = None, []
         if overwrite and resume:
             raise self._err("--overwrite and --resume exclude each other: --resume continues the "
                             "run in this folder, --overwrite deletes it and starts again")
@@ -142,7 +143,8 @@ class RunDir:
             if not (p / MANIFEST).exists():
                 raise self._err("is not a geodem run directory (no manifest.json): nothing to "
                                 "resume; choose another -o to start a run")
-            if self.latest_checkpoint() is None:
+            self.resume_from = self.latest_checkpoint()  # every CRC read once, here
+            if self.resume_from is None:
                 raise self._err(f"nothing to resume: no complete checkpoint in {self.checkpoints}"
                                 " (run with --overwrite to start again)")
             return

@@ -763,7 +763,7 @@ class Runner:
                 f"{', '.join(sorted(self.dir.kept))}", highlight=False, markup=False)
         marker, npz = None, None
         if self.resume:
-            marker, npz = self.dir.latest_checkpoint()
+            marker, npz = self.dir.resume_from
             for name, why in self.dir.damaged:
                 self.console.print(f"checkpoint {name} is damaged ({why}); passed over for the "
                                    f"one before it", highlight=False, markup=False)
