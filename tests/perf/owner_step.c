@@ -56,6 +56,17 @@ static inline void prefetch_ahead(int i, int hi, int n, int W, const double*x, c
     }
 }
 
+// What one contact e = (i, j) of a row reads: its state, the branch and relative displacement,
+// the stored spring, the partner's parameters and the bond rate (both row loops below).
+#define CONTACT_LOADS \
+    CS_T cs=cstate[e]; \
+    const double*pj=props+8*(size_t)j; \
+    double bx=x[3*j]-xi0, by=x[3*j+1]-xi1, bz=x[3*j+2]-xi2; \
+    double rx=dx[3*j]-di0, ry=dx[3*j+1]-di1, rz=dx[3*j+2]-di2; \
+    double sx=fs[3*e], sy=fs[3*e+1], sz=fs[3*e+2]; \
+    double rj=pj[0],knj=pj[1],ksj=pj[2],xbj=pj[3],fs0j=pj[4],muj=pj[5]; \
+    double rate=brate[e];
+
 static void owner(int n, int W, int nslab, const double*restrict x, const double*restrict dx,
     const double*restrict props, const NBR_T*restrict nbr, const int32_t*restrict ostart,
     const int8_t*restrict mirror, CS_T*restrict cstate, double*restrict fs,
@@ -85,13 +96,7 @@ static void owner(int n, int W, int nslab, const double*restrict x, const double
             for (int k=k0; k<kend; k++){
                 size_t e=row+k;
                 int j=nbr[e];
-                CS_T cs=cstate[e];
-                const double*pj=props+8*(size_t)j;
-                double bx=x[3*j]-xi0, by=x[3*j+1]-xi1, bz=x[3*j+2]-xi2;
-                double rx=dx[3*j]-di0, ry=dx[3*j+1]-di1, rz=dx[3*j+2]-di2;
-                double sx=fs[3*e], sy=fs[3*e+1], sz=fs[3*e+2];
-                double rj=pj[0],knj=pj[1],ksj=pj[2],xbj=pj[3],fs0j=pj[4],muj=pj[5];
-                double rate=brate[e];
+                CONTACT_LOADS
                 double dist=sqrt(bx*bx+by*by+bz*bz), inv=1.0/dist;
                 double nx=bx*inv, ny=by*inv, nz=bz*inv;
                 double xn=dist-(ri+rj);
@@ -148,13 +153,7 @@ static void owner(int n, int W, int nslab, const double*restrict x, const double
             for (int k=ostart[i]; k<W; k++){
                 size_t e=(size_t)i*W+k;
                 int j=nbr[e]; if (j<0) break;
-                CS_T cs=cstate[e];
-                const double*pj=props+8*(size_t)j;
-                double bx=x[3*j]-xi0, by=x[3*j+1]-xi1, bz=x[3*j+2]-xi2;
-                double rx=dx[3*j]-di0, ry=dx[3*j+1]-di1, rz=dx[3*j+2]-di2;
-                double sx=fs[3*e], sy=fs[3*e+1], sz=fs[3*e+2];
-                double rj=pj[0],knj=pj[1],ksj=pj[2],xbj=pj[3],fs0j=pj[4],muj=pj[5];
-                double rate=brate[e];
+                CONTACT_LOADS
                 // ---- the law
                 double dist=sqrt(bx*bx+by*by+bz*bz), inv=1.0/dist;
                 double nx=bx*inv, ny=by*inv, nz=bz*inv;
