@@ -67,6 +67,22 @@ static inline void prefetch_ahead(int i, int hi, int n, int W, const double*x, c
     double rj=pj[0],knj=pj[1],ksj=pj[2],xbj=pj[3],fs0j=pj[4],muj=pj[5]; \
     double rate=brate[e];
 
+// The law's first part, alike in both loops: the normal, the overlap, the series stiffnesses,
+// the stored spring rotated onto the tangent plane (its lost energy eqf) and the trial spring.
+#define CONTACT_TRIAL \
+    double dist=sqrt(bx*bx+by*by+bz*bz), inv=1.0/dist; \
+    double nx=bx*inv, ny=by*inv, nz=bz*inv; \
+    double xn=dist-(ri+rj); \
+    double kn=series(kni,knj), ks=series(ksi,ksj); \
+    double hks= ks>0.0? 0.5/ks : 0.0; \
+    double p=nx*sx+ny*sy+nz*sz; \
+    sx-=p*nx; sy-=p*ny; sz-=p*nz; \
+    double eqf=p*p*hks; \
+    double pr=nx*rx+ny*ry+nz*rz; \
+    double ux=rx-pr*nx, uy=ry-pr*ny, uz=rz-pr*nz; \
+    double tx=sx+ks*ux, ty=sy+ks*uy, tz=sz+ks*uz; \
+    double tr2=tx*tx+ty*ty+tz*tz;
+
 static void owner(int n, int W, int nslab, const double*restrict x, const double*restrict dx,
     const double*restrict props, const NBR_T*restrict nbr, const int32_t*restrict ostart,
     const int8_t*restrict mirror, CS_T*restrict cstate, double*restrict fs,
@@ -97,19 +113,8 @@ static void owner(int n, int W, int nslab, const double*restrict x, const double
                 size_t e=row+k;
                 int j=nbr[e];
                 CONTACT_LOADS
-                double dist=sqrt(bx*bx+by*by+bz*bz), inv=1.0/dist;
-                double nx=bx*inv, ny=by*inv, nz=bz*inv;
-                double xn=dist-(ri+rj);
-                double skn=kni+knj, sks=ksi+ksj;
-                double kn= skn>0.0? kni*knj/skn : 0.0, ks= sks>0.0? ksi*ksj/sks : 0.0;
-                double hks= ks>0.0? 0.5/ks : 0.0, hkn= kn>0.0? 0.5/kn : 0.0;
-                double p=nx*sx+ny*sy+nz*sz;
-                sx-=p*nx; sy-=p*ny; sz-=p*nz;
-                double eqf=p*p*hks;
-                double pr=nx*rx+ny*ry+nz*rz;
-                double ux=rx-pr*nx, uy=ry-pr*ny, uz=rz-pr*nz;
-                double tx=sx+ks*ux, ty=sy+ks*uy, tz=sz+ks*uz;
-                double tr2=tx*tx+ty*ty+tz*tz, tu=tx*ux+ty*uy+tz*uz;
+                CONTACT_TRIAL
+                double hkn= kn>0.0? 0.5/kn : 0.0, tu=tx*ux+ty*uy+tz*uz;
                 double mu=fmin(mui,muj);
                 double fnl;
                 if (hertz){
@@ -155,18 +160,7 @@ static void owner(int n, int W, int nslab, const double*restrict x, const double
                 int j=nbr[e]; if (j<0) break;
                 CONTACT_LOADS
                 // ---- the law
-                double dist=sqrt(bx*bx+by*by+bz*bz), inv=1.0/dist;
-                double nx=bx*inv, ny=by*inv, nz=bz*inv;
-                double xn=dist-(ri+rj);
-                double kn=series(kni,knj), ks=series(ksi,ksj);
-                double hks= ks>0.0? 0.5/ks : 0.0;
-                double p=nx*sx+ny*sy+nz*sz;
-                sx-=p*nx; sy-=p*ny; sz-=p*nz;
-                double eqf=p*p*hks;
-                double pr=nx*rx+ny*ry+nz*rz;
-                double ux=rx-pr*nx, uy=ry-pr*ny, uz=rz-pr*nz;
-                double tx=sx+ks*ux, ty=sy+ks*uy, tz=sz+ks*uz;
-                double tr2=tx*tx+ty*ty+tz*tz;
+                CONTACT_TRIAL
                 double eqn=0, eqs=0, mu=fmin(mui,muj), fn;
                 double ox,oy,oz; CS_T csn=cs;
                 if (cs==BONDED){
