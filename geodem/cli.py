@@ -35,7 +35,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from geodem import __version__
+from geodem import __version__, threads
 
 app = typer.Typer(
     name="geodem",
@@ -286,7 +286,7 @@ def collect_info() -> dict:
         "cpus_usable": affinity,
         "memory_available_gib": None if mem is None else round(mem / 2**30, 1),
         "numba_threads": int(numba.get_num_threads()),
-        "numba_threading_layer": str(numba.config.THREADING_LAYER),
+        "numba_threading_layer": threads.describe(),
         "backends": backends,
         "allowed_backends": list(ALLOWED),
         "env_backend": os.environ.get(ENV_BACKEND),
@@ -318,8 +318,9 @@ def info(
     t.add_row("cpu count", f"{data['cpu_count']} (usable: {data['cpus_usable']})")
     if data["memory_available_gib"] is not None:
         t.add_row("memory available", f"{data['memory_available_gib']} GiB")
-    t.add_row("numba threads", f"{data['numba_threads']} (NUMBA_NUM_THREADS; threading layer "
-                               f"{data['numba_threading_layer']})")
+    layer = data["numba_threading_layer"]
+    t.add_row("numba threads", f"{data['numba_threads']} (NUMBA_NUM_THREADS)")
+    t.add_row("threading layer", f"{layer['layer']} (chosen by {layer['chosen_by']})")
     con.print(t)
 
     b = Table(title="backends", title_justify="left")

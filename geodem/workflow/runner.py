@@ -807,6 +807,10 @@ class Runner:
                             f"({prep.doc.file}), {self.built.state.n:,} elements, backend "
                             f"{prep.backend}, dt = {prep.plan.dt:.4g} s, "
                             f"{prep.plan.total_steps:,} time steps -> {self.dir.path}")
+                slow = _slow_layer_note(prep.backend)
+                if slow:
+                    rep.message(slow)
+                    self.summary_extra.setdefault("warnings", []).append(slow)
                 self.sim = Simulation(self.built.state, backend=prep.backend, dt=prep.plan.dt,
                                       check_every=sim_cfg.check_every,
                                       overlap_limit=sim_cfg.overlap_limit,
@@ -949,7 +953,7 @@ class Runner:
         prep, cfg = self.prep, self.cfg
         threads = _threads(prep.backend)
         session = {"started": _now(), "backend": prep.backend, "threads": threads,
-                   "command": self.argv,
+                   "threading_layer": _threading_layer(prep.backend), "command": self.argv,
                    "resumed_from_step": None if marker is None else marker["step"]}
         if marker is None:
             header = ("# geodem: resolved workflow (every default filled in); rerun with\n"
@@ -965,6 +969,7 @@ class Runner:
                 "seed": cfg.metadata.seed,
                 "backend": prep.backend,
                 "threads": threads,
+                "threading_layer": session["threading_layer"],
                 "n_elements": int(self.built.state.n),
                 "dim": int(self.built.state.dim),
                 "dt": prep.plan.dt,
@@ -1130,6 +1135,23 @@ def _threads(backend: str) -> int:
     if backend == "numpy":
         return 1
     return 0
+
+
+def _threading_layer(backend: str) -> str | None:
+    """numba's threading layer for the numba backend (geodem.threads), else None."""
+    if backend != "numba":
+        return None
+    from geodem import threads
+
+    return threads.layer()
+
+
+def _slow_layer_note(backend: str) -> str | None:
+    if backend != "numba":
+        return None
+    from geodem import threads
+
+    return threads.slow_layer_note(threads.layer())
 
 
 def _versions(backend: str) -> dict:

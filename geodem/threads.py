@@ -1,0 +1,70 @@
+"""Which threading layer numba's parallel loops run on, chosen by geodem.
+
+numba picks its layer when the first parallel loop starts, in the order of
+``NUMBA_THREADING_LAYER_PRIORITY`` (numba's default: ``tbb``, ``omp``, ``workqueue``). A TBB
+runtime is on many machines (Debian's ``libtbb12``, which the ``yade`` package brings, or
+conda's numba); with Debian's TBB 2021.8 the quick-start UCS test ran at ~20 steps/s instead of
+~1e4 (an ETA of hours), ``geodem validate`` took minutes, and processes hung at exit in TBB's
+finalisation. geodem's loops are many short parallel regions, which OpenMP serves best
+(docs/performance.md, "Threading layer"). So, unless the user chose a layer
+(``NUMBA_THREADING_LAYER`` or ``NUMBA_THREADING_LAYER_PRIORITY`` set), geodem asks for
+``omp``, then ``workqueue``, then ``tbb``. This module imports nothing heavy: it runs when
+``geodem`` is imported, before numba starts any thread.
+"""
+from __future__ import annotations
+
+import os
+import sys
+
+PRIORITY = ("omp", "workqueue", "tbb")  # geodem's order (measured: docs/performance.md)
+_ENV_LAYER = "NUMBA_THREADING_LAYER"
+_ENV_PRIORITY = "NUMBA_THREADING_LAYER_PRIORITY"
+
+
+def user_choice() -> str | None:
+    """The layer setting the user made in the environment, as text, or None."""
+    layer = os.environ.get(_ENV_LAYER, "").strip()
+    if layer and layer.lower() != "default":
+        return f"{_ENV_LAYER}={layer}"
+    prio = os.environ.get(_ENV_PRIORITY, "").strip()
+    if prio and prio != " ".join(PRIORITY):
+        return f"{_ENV_PRIORITY}={prio}"
+    return None
+
+
+def choose() -> None:
+    """Put geodem's priority in force (environment, and numba's config if numba is imported),
+    unless the user made a choice. Idempotent; a no-op once numba's threads have started."""
+    if user_choice() is not None:
+        return
+    os.environ[_ENV_PRIORITY] = " ".join(PRIORITY)  # numba re-reads it before each compile
+    config = sys.modules.get("numba.core.config")
+    if config is not None:
+        config.THREADING_LAYER_PRIORITY = list(PRIORITY)
+
+
+def layer() -> str:
+    """The layer numba's parallel loops run on in this process (starting numba's threads if
+    they have not started yet), e.g. ``omp``."""
+    import numba
+    from numba.np.ufunc import parallel
+
+    choose()
+    parallel._launch_threads()  # what the first parallel loop does; returns at once after it
+    return str(numba.threading_layer())
+
+
+def describe() -> dict:
+    """The layer in use and where the choice came from (``geodem info``, manifest.json)."""
+    chosen_by = user_choice()
+    return {"layer": layer(), "chosen_by": chosen_by or "geodem (" + ", ".join(PRIORITY) + ")"}
+
+
+def slow_layer_note(name: str) -> str | None:
+    """A warning for a layer that runs geodem's loops much slower than ``omp``, else None."""
+    if name == "omp":
+        return None
+    return (f"numba's parallel loops run on the {name!r} threading layer (OpenMP was not "
+            f"available or another layer was asked for); geodem measured 'workqueue' 10x and "
+            f"Debian's TBB 2021.8 several hundred times slower than 'omp' on its step loop "
+            f"(docs/performance.md, \"Threading layer\")")
