@@ -1,7 +1,6 @@
 """CPU engine: the single-source kernels compiled by numba, parallel over elements (prange)."""
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from geodem.backends import register
@@ -10,6 +9,19 @@ from geodem.core.checks import any_at_least
 from geodem.core.neighbors import (_max_disp_speed, cross_tables, owner_tables,
                                    rows_version, sort_rows)
 from geodem.core.state import BROKEN_BASE, broken_code
+
+
+SLAB_ELEMENTS = 256  # elements per slab at least (a small model keeps few slabs)
+SLAB_MAX = 64  # slabs at most: their crossing contacts' spill rows cost memory
+
+
+def slab_count(n: int) -> int:
+    """Slabs of the owner pass for a model of ``n`` elements: ``ceil(n / SLAB_ELEMENTS)``,
+    from 1 up to ``SLAB_MAX``. A function of the model only, so the order of every force sum
+    (``geodem.backends.step_bodies``, "each contact once") and so every result is the same
+    whatever ``NUMBA_NUM_THREADS`` is; up to ``SLAB_MAX`` threads share the slabs, the last
+    thread's share at most one slab larger (docs/performance.md, "Any number of threads")."""
+    return max(1, min(SLAB_MAX, -(-int(n) // SLAB_ELEMENTS)))
 
 
 class HostBackend:
@@ -123,9 +135,9 @@ class NumbaBackend(HostBackend):
             self.buf = self.cross = None
             return
         self.ahead = self.PREFETCH_AHEAD if s.n >= self.PREFETCH_MIN else 0
-        # one slab per thread of numba's pool (fixed per process): the results depend on the
-        # number of slabs, so a run repeats bit for bit at the same NUMBA_NUM_THREADS
-        self.slabs = max(1, min(numba.config.NUMBA_NUM_THREADS, s.n))
+        # the sums' order depends on the slabs, so their number is the model's (its size),
+        # never the pool's: the same run gives the same bits on any number of threads
+        self.slabs = slab_count(s.n)
         self.cross = cross_tables(s.nbr, self.tables[0], self.slabs)
         self._buffers()
 

@@ -807,6 +807,10 @@ class Runner:
                             f"({prep.doc.file}), {self.built.state.n:,} elements, backend "
                             f"{prep.backend}, dt = {prep.plan.dt:.4g} s, "
                             f"{prep.plan.total_steps:,} time steps -> {self.dir.path}")
+                for note in (getattr(self.built, "info", None) or {}).get(
+                        "material_warnings") or []:
+                    rep.message(f"warning: {note}")
+                    self.summary_extra.setdefault("warnings", []).append(note)
                 slow = _slow_layer_note(prep.backend)
                 if slow:
                     rep.message(slow)

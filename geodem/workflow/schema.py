@@ -229,15 +229,18 @@ class ScaledMicroMaterial(_MaterialInfo):
 
 class LibraryMaterial(Strict):
     """A material of the library (``materials/NAME.yaml`` or a path): its calibrated element
-    parameters for the model's dimension when the file has them (``use: auto`` or
-    ``calibrated``), otherwise its laboratory values converted on the close-packed lattice
-    (``use: lattice``; nu above 0.2 and mu_i below 0.354 are clamped with a warning)."""
+    parameters for the model's dimension (``use: auto`` or ``calibrated``; a file without a
+    calibration for that dimension is an error that says how to calibrate it), or, only when
+    asked for with ``use: lattice``, its laboratory values converted on the close-packed
+    lattice (nu above 0.2 and mu_i below 0.354 clamped, each clamp a warning in
+    summary.json)."""
 
     __tag__: ClassVar[str] = "library"
     library: str = F(..., min_length=1, description="Library material name or file path")
     use: Literal["auto", "calibrated", "lattice"] = F(
-        "auto", description="calibrated parameters (auto: when present) or the lattice "
-                            "conversion")
+        "auto", description="calibrated parameters for the model's dimension (auto and "
+                            "calibrated: an error without them) or, explicitly, the lattice "
+                            "conversion (clamped, with warnings)")
 
 
 class MaterialFile(Strict):

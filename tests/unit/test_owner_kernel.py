@@ -227,12 +227,21 @@ def test_spill_rows_are_grouped_by_partner_in_owner_order():
     assert all(np.all(np.diff(o[inc_start[j]:inc_start[j + 1]]) > 0) for j in range(st.n))
 
 
+def test_the_slab_count_is_the_models_own():
+    from geodem.backends.numba_backend import SLAB_ELEMENTS, SLAB_MAX, slab_count
+
+    assert [slab_count(n) for n in (1, 2, SLAB_ELEMENTS, SLAB_ELEMENTS + 1)] == [1, 1, 1, 2]
+    assert slab_count(10 * SLAB_ELEMENTS) == 10
+    assert slab_count(10**9) == SLAB_MAX
+
+
 @pytest.mark.parametrize("slabs", [1, 3, 8])
 def test_any_number_of_slabs_gives_the_both_rows_result_and_one_buffer(slabs, monkeypatch):
-    # the slabs are numba's pool size; more slabs than threads run one after another
-    import numba
+    # more slabs than threads run one after another
+    from geodem.backends import numba_backend
 
-    monkeypatch.setattr(numba.config, "NUMBA_NUM_THREADS", slabs)
+    monkeypatch.setattr(numba_backend, "SLAB_ELEMENTS", 1)
+    monkeypatch.setattr(numba_backend, "SLAB_MAX", slabs)
     a = breaking_block(1200)
     b = a.copy()
     sa = Simulation(a, backend="numba", monitor_every=0)
