@@ -66,7 +66,8 @@ and the ``triaxial`` step.
 
   summary.json gets ``cohesion`` [Pa], ``friction_angle_deg``, ``ucs_fit`` [Pa] (None when no fit
   is possible: fewer than two distinct sigma3, or slope < 1), ``confining_pressures`` [Pa] and
-  ``peak_strengths`` [Pa] (peak sigma1 per test). Files: ``triaxial_curves.csv`` (every sample
+  ``peak_strengths`` [Pa] (peak sigma1 per test; None for a test that has not peaked:
+  :func:`has_peaked`, which is also listed in ``no_peak`` and kept out of the fit). Files: ``triaxial_curves.csv`` (every sample
   of every test), ``triaxial.json`` (progress and results per test; finished tests are skipped
   on ``--resume``), ``triaxial_initial.npz`` (the state every test starts from), and the
   pictures ``triaxial_curves.png`` (deviator and volumetric strain vs axial strain),
@@ -996,13 +997,19 @@ class _Run:
         except ValueError as exc:
             ctx.log(f"sigma3 = {s3:.4g} Pa: modulus not fitted: {exc}")
         ct, cs = self._cracks()
-        res = {"sigma3": s3, "peak_strength": float(sig1[i]), "peak_deviator": float(dev[i]),
+        peaked = has_peaked(reason, dev, i)
+        res = {"sigma3": s3, "peaked": peaked,
+               "peak_strength": float(sig1[i]) if peaked else None,
+               "max_strength": float(sig1[i]), "peak_deviator": float(dev[i]),
                "peak_strain": float(eps[i]), "lateral_stress_at_peak": float(lat_sig[i]),
                "E": E, "final_strain": float(eps[-1]), "final_deviator": float(dev[-1]),
                "stopped_by": reason, "samples": len(rows), "cracks_tensile": ct,
                "cracks_shear": cs, "consolidation": rec["consolidation"],
                "steps": int(ctx.state.step - rec["start"])}
-        ctx.log(f"sigma3 = {s3:.4g} Pa: peak sigma1 = {res['peak_strength']:.4g} Pa at strain "
+        what = (f"peak sigma1 = {sig1[i]:.4g} Pa" if peaked else
+                f"no peak (sigma1 still {sig1[i]:.4g} Pa and not fallen by "
+                f"{100 * (1 - SOFTENED):.0f} % when stopped by {reason}; raise max_strain)")
+        ctx.log(f"sigma3 = {s3:.4g} Pa: {what} at strain "
                 f"{res['peak_strain']:.4g} (lateral stress {res['lateral_stress_at_peak']:.4g} "
                 f"Pa), E = {E or math.nan:.4g} Pa; cracks {ct} tensile, {cs} shear; stopped by "
                 f"{reason}")
@@ -1028,8 +1035,12 @@ class _Run:
         from geodem.labtests import measure
 
         ctx, p = self.ctx, self.p
-        s3 = [r["sigma3"] for r in results]
-        s1 = [r["peak_strength"] for r in results]
+        s3_all = [r["sigma3"] for r in results]
+        # a stage that has not peaked has no strength to fit: it is kept out of the envelope
+        peaks = [(r["sigma3"], r["peak_strength"]) for r in results
+                 if r.get("peaked", True) and r["peak_strength"] is not None]
+        s3 = [a for a, _ in peaks]
+        s1 = [b for _, b in peaks]
         fit = {"cohesion": None, "friction_angle_deg": None, "ucs_fit": None}
         fit_error = None
         try:
@@ -1040,7 +1051,9 @@ class _Run:
             fit_error = str(exc)
             ctx.log(f"Mohr-Coulomb envelope not fitted: {exc}")
         out = dict(fit)
-        out.update({"confining_pressures": s3, "peak_strengths": s1})
+        out.update({"confining_pressures": s3_all,
+                    "peak_strengths": [r["peak_strength"] for r in results],
+                    "no_peak": [r["sigma3"] for r in results if r["peak_strength"] is None]})
         ctx.summary.update(out)
         res = dict(out, tests=results, strain_rate=p.strain_rate,
                    thickness=self.t if self.dim == 2 else None)
@@ -1064,8 +1077,21 @@ class _Run:
             pos = 0.5 * (st.x[log["i"]] + st.x[log["j"]]) if len(log) else np.zeros((0, self.dim))
             spec = self.walls.spec
             res["plots"].append(ctx.plot("triaxial_cracks.png", lambda path: _plot_cracks(
-                path, st.x, spec, pos, log["type"], s3[-1] if s3 else 0.0)))
+                path, st.x, spec, pos, log["type"], s3_all[-1] if s3_all else 0.0)))
         return res
+
+
+SOFTENED = 0.95  # a stage stopped by max_strain has peaked if q fell below this x its maximum
+
+
+def has_peaked(reason: str, dev, i: int) -> bool:
+    """Whether a triaxial stage reached its peak: stopped by the post-peak ``drop``, or, when
+    stopped otherwise (``max_strain``, walls), its deviator ``dev`` has fallen below
+    ``SOFTENED`` x its maximum ``dev[i]`` after it. A curve still hardening at the stop has
+    no peak: its largest stress is a lower bound of the strength, not the strength."""
+    if reason == "drop":
+        return True
+    return bool(i < len(dev) - 1 and dev[-1] < SOFTENED * dev[i])
 
 
 # ============================================================================ pictures

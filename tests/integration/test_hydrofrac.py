@@ -240,7 +240,7 @@ def test_direct_tension_strength_of_the_plate_packing(isotropic_direct):
     res = sub["results"]["tension"]
     assert res["area"] == pytest.approx(10 * 0.005 * 0.005, rel=0.05)
     assert s["tensile_strength"] == pytest.approx(res["peak_force"] / res["area"], rel=1e-12)
-    # measured 0.651 MPa (seed 0; seeds 1, 2: 0.708, 0.824) before session 7, 0.825 since
+    # measured 0.651 MPa (seed 0; seeds 1, 2: 0.708, 0.824) before the each-contact-once pass, 0.825 after it
     # (one numba thread: 0.786); the strips' scatter is about 12 % (docs)
     assert 0.5e6 < s["tensile_strength"] < 0.9e6
     assert "direct tension" in r["tensile_strength_source"]

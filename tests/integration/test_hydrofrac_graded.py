@@ -32,7 +32,7 @@ HF = ROOT / "workflows" / "hydraulic_fracturing.yaml"
 TINY = ["model.size=0.1", "model.hole_radius=0.0075", "model.coarsen.factor=2",
         "model.coarsen.band=0.01", "model.coarsen.transition=0.01"]
 
-# the ramp the graded measurements were made with (the workflow's default until session 8)
+# the ramp the graded measurements were made with (the workflow's default before the 5e8 Pa/s ramp)
 RAMP_2E9 = ["steps.injection.pressure_rate=2.0e9", "steps.injection.duration=0.005"]
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
@@ -163,7 +163,7 @@ def test_coarsening_beyond_three_hole_radii_keeps_the_default_breakdown(tmp_path
     the uniform plate's mean. Measured on the session-7 engine: uniform seeds 0-2: 2.15,
     2.30, 2.00 MPa (4, 5, 5 arms); graded: 3.49 (its burst came late: first crack at
     1.39 MPa), 2.35, 2.30 MPa (4, 3, 3 arms). One seed is not enough: the burst criterion
-    (5 bonds within 0.25 MPa) picks a late sample now and then. (Before session 7: uniform
+    (5 bonds within 0.25 MPa) picks a late sample now and then. (Before the each-contact-once pass: uniform
     2.25, 2.30, 2.09; graded seed 0 1.84 MPa.) With the size law's thicknesses and a band of
     one hole radius the stiff coarse ring shields the wall: first crack at 2.0 MPa instead of
     1.4 MPa (docs/hydraulic_fracturing.md)."""

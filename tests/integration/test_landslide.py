@@ -1,8 +1,9 @@
 """Landslide from an elevation raster (geodem/workflow/landslide.py, workflows/landslide.yaml).
 
 * metrics by hand: runout, travel angle and the mass-centre path of a made-up slide;
-* a tiny landslide (the shipped hill at scale 0.4: d = 7.5 m, ~550 elements, 29 slide
-  elements, mass damping 0.2 % of critical, "rest" = mean speed below 1 m/s): the slide
+* a tiny landslide (the shipped hill at scale 0.5: d = 6 m, ~840 elements, 56 slide
+  elements, mass damping 0.2 % of critical, "rest" = mean speed below 0.5 m/s; at scale 0.4
+  the 33 slide elements of one packing left 40 % of the slide in place): the slide
   moves down-slope and comes to rest; its mass centre obeys the energy
   bound of Coulomb sliding ``H_c / L_c >= mu`` (gravity is the only source once triggered:
   friction, breakage and damping only dissipate); the ground does not move; the outputs carry
@@ -30,9 +31,9 @@ load_builtins()
 ROOT = Path(__file__).resolve().parents[2]
 WF = ROOT / "workflows" / "landslide.yaml"
 HILL = ROOT / "workflows" / "data" / "hill.tif"
-TINY = ["model.scale=0.4", "steps.slide.max_time=40.0", "steps.slide.gif_frames=4",
+TINY = ["model.scale=0.5", "steps.slide.max_time=40.0", "steps.slide.gif_frames=4",
         "steps.slide.snapshots=2", "steps.slide.vtk_frames=2", "steps.slide.slide_friction=0.1",
-        "steps.slide.damping_ratio=0.002", "steps.slide.rest_speed=1.0",
+        "steps.slide.damping_ratio=0.002", "steps.slide.rest_speed=0.5",
         "steps.slide.ground_damping_ratio=0.002"]
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
@@ -84,7 +85,7 @@ def tiny(tmp_path_factory):
 def test_tiny_slide_moves_down_slope_and_stops(tiny):
     s, out = tiny
     r = s["results"]["slide"]
-    d = 7.5
+    d = 6.0  # 3 m / scale
     assert s["status"] == "ok" and r["stopped_by"] == "rest", r
     assert r["final_mean_speed"] < 1.0 and r["final_mean_speed"] < 0.2 * r["max_velocity"]
     assert r["com_travel_m"] > 2 * d and r["com_drop_m"] > d  # down-slope (east), downhill

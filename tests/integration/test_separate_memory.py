@@ -2,7 +2,7 @@
 kept apart from the state as the GPU backend keeps them (tests/separate_memory.py), is the
 plain numba run bit for bit, and no code reads or writes a state array behind the backend's
 ``pull`` / ``push``. The CPU backends share their arrays with the state, so only this (or a
-GPU) shows such a slip: before session 12 the cupy backend ended ``Simulation.run`` without
+GPU) shows such a slip: before the host/device fix the cupy backend ended ``Simulation.run`` without
 bringing the state back, and the packing of every specimen read stale velocities."""
 import pytest
 

@@ -153,7 +153,7 @@ def strength_run(tmp_path_factory):
     # a little wider than BOX: a specimen 6 elements wide can collapse as a structure (a column
     # gives way after a handful of bond breaks) before it fails as a material
     p = write(tmp, {"confining_pressures": [0.0, 1.0e6, 2.0e6], "strain_rate": 1.0,
-                    "max_strain": 0.006, "samples": 100}, model={"size": [0.04, 0.08]})
+                    "max_strain": 0.012, "samples": 100}, model={"size": [0.04, 0.08]})
     out = tmp / "out"
     res = CliRunner().invoke(app, ["run", str(p), "-o", str(out), "--no-progress"])
     return res, out
@@ -180,7 +180,17 @@ def test_workflow_writes_summary_and_pictures(strength_run):
 def test_strength_grows_with_confinement_and_fits_mohr_coulomb(strength_run):
     res, out = strength_run
     s = json.loads((out / "summary.json").read_text())
-    s3, s1 = np.array(s["confining_pressures"]), np.array(s["peak_strengths"])
+    tests = s["results"]["triaxial"]["tests"]
+    # a stage still hardening when it stops has no peak: no strength, and out of the fit
+    for t in tests:
+        assert t["peaked"] == (t["peak_strength"] is not None)
+        assert t["peaked"] or (t["stopped_by"] != "drop" and t["max_strength"] > t["sigma3"])
+    assert s["no_peak"] == [t["sigma3"] for t in tests if not t["peaked"]]
+    assert s["peak_strengths"] == [t["peak_strength"] for t in tests]
+    peaked = [t for t in tests if t["peaked"]]
+    assert len(peaked) == 3, s["no_peak"]  # max_strain is large enough for every stage here
+    s3 = np.array([t["sigma3"] for t in peaked])
+    s1 = np.array([t["peak_strength"] for t in peaked])
     assert np.all(np.diff(s1) > 0)
     assert np.all(s1 > s3)
     assert 0.0 < s["friction_angle_deg"] < 90.0
@@ -221,3 +231,20 @@ def test_colliding_walls_are_refused(tmp_path):
     msg = _error(write(tmp_path, {"confining_pressures": [1.0e6]},
                        model={"wall_margin": 1.0}))
     assert "wall_margin" in msg and "walls" in msg
+
+
+def test_a_stage_stopped_before_its_peak_is_no_peak_and_out_of_the_fit(tmp_path):
+    # 2 MPa of confinement keeps the specimen hardening past 0.6 % strain: its largest stress
+    # at max_strain is a lower bound, not a strength; the fit is left with one point
+    p = write(tmp_path, {"confining_pressures": [0.0, 2.0e6], "strain_rate": 1.0,
+                         "max_strain": 0.006, "samples": 100}, model={"size": [0.04, 0.08]})
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["run", str(p), "-o", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    s = json.loads((out / "summary.json").read_text())
+    confined = s["results"]["triaxial"]["tests"][1]
+    assert confined["stopped_by"] == "max_strain" and not confined["peaked"]
+    assert s["no_peak"] == [2.0e6] and s["peak_strengths"][1] is None
+    assert confined["max_strength"] > s["peak_strengths"][0] > 0
+    assert s["friction_angle_deg"] is None and s["cohesion"] is None
+    assert "no peak" in (out / "log.txt").read_text()

@@ -39,7 +39,7 @@ def test_calibration_reproduces_at_its_resolution(sandstone, tmp_path):
     cal = sandstone.calibrated["2d"]
     s = ucs(tmp_path, cal["specimen"]["d_mean"])
     # the same specimen, seed and parameters as the calibration's best iteration. Not bit for
-    # bit: the record was measured before the engine's adaptive neighbour checks (session 6),
+    # bit: the record was measured before the engine's adaptive neighbour checks,
     # whose other rebuild steps change the round-off (E then moved by 1.5e-5 relative)
     assert s["E"] == pytest.approx(cal["measured"]["E"], rel=1e-4)
     assert s["ucs"] == pytest.approx(cal["measured"]["Cu"], rel=1e-4)
