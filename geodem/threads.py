@@ -3,9 +3,9 @@
 numba picks its layer when the first parallel loop starts, in the order of
 ``NUMBA_THREADING_LAYER_PRIORITY`` (numba's default: ``tbb``, ``omp``, ``workqueue``). A TBB
 runtime is on many machines (Debian's ``libtbb12``, which the ``yade`` package brings, or
-conda's numba); with Debian's TBB 2021.8 the quick-start UCS test ran at ~20 steps/s instead of
-~1e4 (an ETA of hours), ``geodem validate`` took minutes, and processes hung at exit in TBB's
-finalisation. geodem's loops are many short parallel regions, which OpenMP serves best
+conda's numba); with Debian's TBB 2021.8 the quick-start UCS test had not finished packing its
+specimen after 60 s (it takes ~2 s on OpenMP) and ``geodem validate`` not after 120 s
+(docs/performance.md, "Threading layer"). geodem's loops are many short parallel regions, which OpenMP serves best
 (docs/performance.md, "Threading layer"). So, unless the user chose a layer
 (``NUMBA_THREADING_LAYER`` or ``NUMBA_THREADING_LAYER_PRIORITY`` set), geodem asks for
 ``omp``, then ``workqueue``, then ``tbb``. This module imports nothing heavy: it runs when
@@ -65,6 +65,6 @@ def slow_layer_note(name: str) -> str | None:
     if name == "omp":
         return None
     return (f"numba's parallel loops run on the {name!r} threading layer (OpenMP was not "
-            f"available or another layer was asked for); geodem measured 'workqueue' 10x and "
-            f"Debian's TBB 2021.8 several hundred times slower than 'omp' on its step loop "
+            f"available or another layer was asked for); geodem measured its UCS workflow 10x "
+            f"slower on 'workqueue' and its step 7x slower on Debian's TBB 2021.8 than on 'omp' "
             f"(docs/performance.md, \"Threading layer\")")

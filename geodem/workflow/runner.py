@@ -1151,11 +1151,10 @@ def _threading_layer(backend: str) -> str | None:
 
 
 def _slow_layer_note(backend: str) -> str | None:
-    if backend != "numba":
-        return None
     from geodem import threads
 
-    return threads.slow_layer_note(threads.layer())
+    layer = _threading_layer(backend)
+    return None if layer is None else threads.slow_layer_note(layer)
 
 
 def _versions(backend: str) -> dict:

@@ -66,9 +66,9 @@ and the ``triaxial`` step.
 
   summary.json gets ``cohesion`` [Pa], ``friction_angle_deg``, ``ucs_fit`` [Pa] (None when no fit
   is possible: fewer than two distinct sigma3, or slope < 1), ``confining_pressures`` [Pa] and
-  ``peak_strengths`` [Pa] (peak sigma1 per test; None for a test that has not peaked:
-  :func:`has_peaked`, which is also listed in ``no_peak`` and kept out of the fit). Files: ``triaxial_curves.csv`` (every sample
-  of every test), ``triaxial.json`` (progress and results per test; finished tests are skipped
+  ``peak_strengths`` [Pa] (peak sigma1 per test; None for a test that has not peaked,
+  :func:`has_peaked`: such a test is listed in ``no_peak`` and kept out of the fit). Files:
+  ``triaxial_curves.csv`` (every sample of every test), ``triaxial.json`` (progress and results per test; finished tests are skipped
   on ``--resume``), ``triaxial_initial.npz`` (the state every test starts from), and the
   pictures ``triaxial_curves.png`` (deviator and volumetric strain vs axial strain),
   ``mohr_circles.png`` (circles at the peaks and the fitted envelope) and ``triaxial_cracks.png``
@@ -1038,7 +1038,7 @@ class _Run:
         s3_all = [r["sigma3"] for r in results]
         # a stage that has not peaked has no strength to fit: it is kept out of the envelope
         peaks = [(r["sigma3"], r["peak_strength"]) for r in results
-                 if r.get("peaked", True) and r["peak_strength"] is not None]
+                 if r["peak_strength"] is not None]
         s3 = [a for a, _ in peaks]
         s1 = [b for _, b in peaks]
         fit = {"cohesion": None, "friction_angle_deg": None, "ucs_fit": None}
