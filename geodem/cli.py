@@ -552,6 +552,17 @@ def calibrate_cmd(
     "Cu",
     save: Annotated[bool, typer.Option("--save", help="Write the result into the material "
                                                       "file's 'calibrated' block.")] = False,
+    packing: Annotated[str, typer.Option("--packing", help="Specimen packing recipe, stored "
+                                                           "with the result: isotropic or "
+                                                           "deposit (2-D only).")] =
+    "isotropic",
+    bond_gap: Annotated[Optional[float], typer.Option(
+        "--bond-gap", min=1e-4, max=0.3, help="Bond range (isotropic packing): pairs whose "
+                                              "surface gap is below this x d_mean are bonded "
+                                              "(default 0.01; larger lowers Cu / Tu).")] = None,
+    bond_weibull: Annotated[Optional[float], typer.Option(
+        "--bond-weibull", min=0.5, max=100, help="Weibull modulus of the per-bond strength "
+                                                 "scatter (default: none).")] = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
     backend: Annotated[Optional[str], typer.Option(
@@ -577,9 +588,13 @@ def calibrate_cmd(
     if min(size) < 4 * d_mean:
         _fail(f"--d-mean {d_mean:g} m: allowed up to {min(size) / 4:g} m (the specimens are "
               f"{min(size):g} m across and need at least 4 elements)", USER_ERROR)
-    spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim, d_mean=d_mean,
-                           ucs_size=size, seed=seed, iterations=iterations,
-                           backend=backend, prefer=prefer)
+    structure = {"packing": packing, "bond_gap": bond_gap, "bond_strength_weibull": bond_weibull}
+    try:
+        spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim, d_mean=d_mean,
+                               ucs_size=size, seed=seed, iterations=iterations,
+                               backend=backend, prefer=prefer, structure=structure)
+    except ValueError as exc:
+        _fail(f"--packing / --bond-gap / --bond-weibull: {exc}", USER_ERROR)
     con = _out()
     con.print(f"calibrating {mat.name} ({dim}-D specimens, d = {d_mean:g} m) -> {out}",
               highlight=False)

@@ -83,13 +83,32 @@ def per_size(element: dict, d: float) -> dict:
     ``Micro.element``) as size-free values: ``kn_per_d = kn / d``, ``ks_per_d = ks / d``,
     ``xb_per_d = xb / d``, ``fs0_per_d2 = fs0 / d^2``, ``mu`` (PHYSICS.md section 2, mixed
     sizes: ``kn, ks, xb ∝ d``, ``fs0 ∝ d^2``)."""
-    return {"kn_per_d": element["kn"] / d, "ks_per_d": element["ks"] / d,
-            "xb_per_d": element["xb"] / d, "fs0_per_d2": element["fs0"] / d ** 2,
-            "mu": element["mu"]}
+    out = {"kn_per_d": element["kn"] / d, "ks_per_d": element["ks"] / d,
+           "xb_per_d": element["xb"] / d, "fs0_per_d2": element["fs0"] / d ** 2,
+           "mu": element["mu"]}
+    return _with_structure(out, element)
 
 
 def at_size(scaled: dict, d: float) -> dict:
     """Inverse of :func:`per_size`: ``kn, ks, xb, fs0, mu`` of an element of diameter ``d``."""
-    return {"kn": scaled["kn_per_d"] * d, "ks": scaled["ks_per_d"] * d,
-            "xb": scaled["xb_per_d"] * d, "fs0": scaled["fs0_per_d2"] * d ** 2,
-            "mu": scaled["mu"]}
+    out = {"kn": scaled["kn_per_d"] * d, "ks": scaled["ks_per_d"] * d,
+           "xb": scaled["xb_per_d"] * d, "fs0": scaled["fs0_per_d2"] * d ** 2,
+           "mu": scaled["mu"]}
+    return _with_structure(out, scaled)
+
+
+#: size-free micro-structure parameters carried with the element parameters (the specimen
+#: builder reads them, :func:`geodem.build.specimen.make_specimen`): ``packing`` (the recipe:
+#: ``isotropic`` or ``deposit``), ``bond_gap`` (bond range: pairs whose surface gap is below
+#: ``bond_gap x d_mean`` are bonded, then made to touch) and ``bond_strength_weibull`` (the
+#: Weibull modulus of the per-bond strength factors,
+#: :func:`geodem.build.specimen.bond_strength_factors`). A calibration stores them with the
+#: element parameters, so every test builds the rock the same way.
+STRUCTURE_KEYS = ("packing", "bond_gap", "bond_strength_weibull")
+
+
+def _with_structure(out: dict, source: dict) -> dict:
+    for k in STRUCTURE_KEYS:
+        if source.get(k) is not None:
+            out[k] = source[k]
+    return out

@@ -52,6 +52,7 @@ __all__ = ["bond_network", "isotropic_packing", "jam", "stress_free", "stress_fr
 
 PHI_START = 0.3
 PHI_BULK = 0.635  # random close packing of the default size spread (measured: 0.639)
+PHI_BULK_2D = 0.84  # random close packing of discs of the default size spread
 WALL_DEFICIT = 0.15
 SKIN = 0.15  # pair-list skin, in d_mean
 FTOL = 1e-2  # FIRE: largest net force / target overlap (k = 1, d_mean = 1)
@@ -374,11 +375,12 @@ def stress_free(x, r, i, j, faces, lo, hi, *, prestress=DEFAULT_PRESTRESS, itera
 
 
 # ============================================================================ driver
-def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=PHI_BULK,
+def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=None,
                       overlap=DEFAULT_OVERLAP, gap=DEFAULT_GAP, prestress=DEFAULT_PRESTRESS):
     """A dense, isotropic, stress-free random packing filling the box ``[0, size]`` (module
     docstring). ``n`` elements (default: ``phi`` x box volume / mean element volume, so that
-    the jammed diameters come out close to ``d_mean``); ``overlap``, ``gap`` and ``prestress``
+    the jammed diameters come out close to ``d_mean``; ``phi`` default: 0.635 in 3-D, 0.84 in
+    2-D); ``overlap``, ``gap`` and ``prestress``
     in units of ``d_mean``. Returns ``(x, r, report)`` in metres; the report has ``n``,
     ``d_mean`` (of the result), ``scale`` (jammed / requested diameters), ``jam_overlap``,
     ``bonds`` (pairs to bond), ``face_contacts``, ``rattler_bonds``, ``max_radius_change``
@@ -390,6 +392,8 @@ def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=PHI_
     dim = size.size
     if dim not in (2, 3) or not np.all(size > 0):
         raise ValueError(f"size must hold 2 or 3 positive lengths [m], got {size.tolist()}")
+    if phi is None:
+        phi = PHI_BULK if dim == 3 else PHI_BULK_2D
     if n is None:
         vmean = (math.pi / 6.0 * packing._mean_dpow(d_mean, distri_rate, 3) if dim == 3
                  else math.pi / 4.0 * packing._mean_dpow(d_mean, distri_rate, 2))

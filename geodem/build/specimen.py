@@ -19,14 +19,22 @@
     then (reported).
 
 ``make_specimen(shape, size, d_mean, distri_rate, material, dim, seed)``
-    3-D: :func:`isotropic_specimen` (isotropic compression by radius expansion inside the
-    shape's bounding box, :mod:`geodem.build.isotropic`; bonds stress-free, flat faces).
-    2-D: deposit (:mod:`geodem.build.packing`) in a box 1.5 ``d_mean`` wider than the specimen on every
-    side and about 2 ``d_mean`` taller, compact with the platen, lift the platen and stiffen the
-    packing to the material's ``kn`` (:func:`packing.stiffen`: the locked-in overlaps shrink
-    below the bonds' breaking displacement), cut the shape (centres inside;
-    specimen bounding box starting at the origin), cement, Morton-sort
-    (:func:`spatial_sort`). Every element is in group ``"specimen"``; platens are for the caller.
+    The packing recipe is the element parameters' ``packing`` (a calibration stores it; default
+    ``isotropic`` in 3-D, ``deposit`` in 2-D):
+
+    * ``isotropic``: :func:`isotropic_specimen` (isotropic compression by radius expansion
+      inside the shape's bounding box, :mod:`geodem.build.isotropic`; bonds stress-free, flat
+      faces; every pair within ``bond_gap`` d_mean bonded, default 0.01);
+    * ``deposit`` (2-D only): deposit (:mod:`geodem.build.packing`) in a box 1.5 ``d_mean``
+      wider than the specimen on every side and about 2 ``d_mean`` taller, compact with the
+      platen, lift the platen and stiffen the packing to the material's ``kn``
+      (:func:`packing.stiffen`: the locked-in overlaps shrink below the bonds' breaking
+      displacement), cut the shape (centres inside; specimen bounding box starting at the
+      origin), cement, Morton-sort (:func:`spatial_sort`).
+
+    The recipe is part of the rock: the same element parameters give a 2-D sandstone Cu / Tu of
+    7.9 on ``deposit`` and 17.7 on ``isotropic`` (docs/calibration.md, "Reaching real rocks").
+    Every element is in group ``"specimen"``; platens are for the caller.
 """
 from __future__ import annotations
 
@@ -42,7 +50,7 @@ from geodem.core.state import BONDED, State
 from geodem.materials import Micro, at_size, macro_to_micro
 
 __all__ = ["cement", "make_specimen", "isotropic_specimen", "specimen_params", "DEFAULT_MATERIAL",
-           "coordination", "specimen_shape"]
+           "coordination", "specimen_shape", "packing_recipe", "bond_strength_factors"]
 
 DEFAULT_MATERIAL = {"E": 10e9, "nu": 0.15, "Tu": 5e6, "Cu": 50e6, "mu_i": 0.8, "rho": 2500.0}
 _ELEMENT_KEYS = ("kn", "ks", "xb", "fs0", "mu")
@@ -53,6 +61,10 @@ CEMENT_GAP = 0.1  # make_specimen bonds pairs with gaps up to this fraction of t
 def coordination(state: State) -> float:
     """Mean number of intact bonds per element."""
     return float((state.cstate == BONDED).sum()) / max(state.n, 1)
+
+
+def _element_dict(element_params) -> dict:
+    return element_params.element if isinstance(element_params, Micro) else element_params
 
 
 def _assign(state, element_params, d_ref, rho):
@@ -80,8 +92,28 @@ def _assign(state, element_params, d_ref, rho):
     state.m[:] = float(rho) * vol
 
 
+def bond_strength_factors(n_bonds: int, weibull_m, seed: int = 0) -> np.ndarray:
+    """Per-bond strength factors (``brate``) of a heterogeneous rock: Weibull distributed with
+    modulus ``weibull_m`` (RFPA's homogeneity index: larger is more uniform) and mean 1::
+
+        w = (-ln U)^(1/m) / Gamma(1 + 1/m),   U uniform in (0, 1)
+
+    (coefficient of variation ``sqrt(Gamma(1 + 2/m) / Gamma(1 + 1/m)^2 - 1)``: 0.52 at m = 2,
+    0.36 at 3, 0.23 at 5, 0.12 at 10). Both the tensile (``kn xb``) and the shear (``fs0``)
+    strength of the bond are multiplied by ``w`` (the law's ``rate``). ``weibull_m`` None: every
+    factor is 1 (uniform bonds). Tang et al. 2000 (RFPA); Potyondy & Cundall 2004, section 3.2
+    (strength scatter of parallel bonds)."""
+    if weibull_m is None:
+        return np.ones(n_bonds)
+    m = float(weibull_m)
+    if not m > 0.0:
+        raise ValueError(f"bond_strength_weibull = {weibull_m!r}: allowed > 0")
+    u = np.random.default_rng(seed).random(n_bonds)
+    return (-np.log1p(-u)) ** (1.0 / m) / math.gamma(1.0 + 1.0 / m)
+
+
 def cement(state: State, gap=None, element_params=None, *, d_ref=None, rho=None, n_across=None,
-           tol=1e-3, max_rounds=20, backend=None, skin=None):
+           tol=1e-3, max_rounds=20, backend=None, skin=None, seed=0):
     """Give ``state`` its material and bond every contact within ``gap``; balance (see module
     docstring). Modifies ``state`` in place. Returns a report dict: ``n_elements``, ``bonds``
     (intact after the balance), ``bonds_formed``, ``bonds_broken``, ``coordination`` (bonds per
@@ -112,7 +144,9 @@ def cement(state: State, gap=None, element_params=None, *, d_ref=None, rho=None,
     st.nbr[:] = -1
     st.cstate[:] = 0
     st.brate[:] = 1.0
-    out = neighbors.rows_from_pairs(st, i, j, bonded=True)
+    weibull = _element_dict(element_params).get("bond_strength_weibull")
+    rate = bond_strength_factors(len(i), weibull, seed)
+    out = neighbors.rows_from_pairs(st, i, j, bonded=True, brate=rate)
     if isinstance(out, State):  # pragma: no cover - rows_from_pairs assigns in place
         st = out
     neighbors.build_rows(st)
@@ -187,9 +221,10 @@ def specimen_params(mat, element, d_mean):
 
 def isotropic_specimen(shp, d_mean, distri_rate, params, rho, *, seed=0, backend=None,
                        tol=1e-3, **packing_kw):
-    """A 3-D bonded random specimen of shape ``shp`` (:func:`specimen_shape`) from
+    """A bonded random specimen of shape ``shp`` (:func:`specimen_shape`) from
     :func:`geodem.build.isotropic.isotropic_packing`: a box is packed in itself (flat faces,
     the box of the packing), other shapes in their bounding box (and cut: centres inside).
+    The bond range is ``params["bond_gap"]`` (d_mean; default the packing's 0.01).
     The packing's bonded pairs touch, stress-free; :func:`cement` bonds them (gap 0) with the
     element parameters ``params`` (at ``d_mean``) and balances; Morton-sorted. Every element is
     in group ``"specimen"``. Returns ``(state, report)``: the :func:`cement` keys plus
@@ -198,6 +233,8 @@ def isotropic_specimen(shp, d_mean, distri_rate, params, rho, *, seed=0, backend
     from geodem.core.state import new_state
 
     lo, hi = shp.bounds
+    if params.get("bond_gap") is not None:
+        packing_kw.setdefault("gap", float(params["bond_gap"]))
     x, r, prep = isotropic_packing(hi - lo, d_mean, distri_rate, seed=seed, **packing_kw)
     x = x + lo
     if not isinstance(shp, Box):
@@ -205,12 +242,30 @@ def isotropic_specimen(shp, d_mean, distri_rate, params, rho, *, seed=0, backend
         x, r = x[keep], r[keep]
     st = new_state(x, r, 1.0, width=16)
     groups.add_group(st, "specimen", np.arange(st.n))
-    rep = cement(st, 0.0, params, d_ref=d_mean, rho=rho, backend=backend, tol=tol)
+    rep = cement(st, 0.0, params, d_ref=d_mean, rho=rho, backend=backend, tol=tol, seed=seed)
     neighbors.spatial_sort(st)
     vol_el = float(packing.element_volume(st.r, st.dim).sum())
     rep.update({"volume": shp.volume, "shape_packing_fraction": vol_el / shp.volume,
                 "packing": prep})
     return st, rep
+
+
+PACKINGS = ("isotropic", "deposit")
+
+
+def packing_recipe(element, dim: int) -> str:
+    """The packing recipe of element parameters ``element`` (their ``packing``; default
+    ``isotropic`` in 3-D, ``deposit`` in 2-D). ``deposit`` is 2-D only."""
+    recipe = (element or {}).get("packing") or ("isotropic" if dim == 3 else "deposit")
+    if recipe not in PACKINGS:
+        raise ValueError(f"packing = {recipe!r}: allowed {', '.join(PACKINGS)}")
+    if recipe == "deposit" and dim == 3:
+        raise ValueError("packing = 'deposit' is 2-D only; 3-D specimens are packed "
+                         "isotropically (packing: isotropic)")
+    if recipe == "deposit" and (element or {}).get("bond_gap") is not None:
+        raise ValueError("bond_gap needs packing: isotropic (the deposited packing bonds the "
+                         "pairs within a tenth of the breaking displacement)")
+    return recipe
 
 
 def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material=None, dim=3,
@@ -225,7 +280,8 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
     mat = dict(DEFAULT_MATERIAL if material is None else material)
     shp = specimen_shape(shape, size if size is not None else [10 * d_mean] * dim, dim)
-    if dim == 3:
+    recipe = packing_recipe(element, dim)
+    if recipe == "isotropic":
         return isotropic_specimen(shp, d_mean, distri_rate,
                                   specimen_params(mat, element, d_mean), mat["rho"], seed=seed,
                                   backend=backend, tol=tol)
@@ -274,7 +330,8 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
     groups.add_group(sp, "specimen", np.arange(sp.n))
     if gap is None:
         gap = CEMENT_GAP * xb_min
-    rep = cement(sp, gap, params, d_ref=d_mean, rho=mat["rho"], backend=backend, tol=tol)
+    rep = cement(sp, gap, params, d_ref=d_mean, rho=mat["rho"], backend=backend, tol=tol,
+                 seed=seed)
     neighbors.spatial_sort(sp)
     vol_el = float(packing.element_volume(sp.r, dim).sum())
     rep.update({"volume": shp.volume, "shape_packing_fraction": vol_el / shp.volume,

@@ -114,7 +114,9 @@ class CalibrationSpec:
     tolerances: dict = field(default_factory=lambda: dict(TOLERANCES))
     backend: str | None = None
     prefer: str = "Cu"  # strength matched when Cu / Tu is out of reach
-
+    # micro-structure kept fixed while calibrating and stored with the element parameters
+    # (geodem.materials.STRUCTURE_KEYS): packing recipe, bond range, bond-strength scatter
+    structure: dict = field(default_factory=lambda: {"packing": "isotropic"})
 
     def __post_init__(self):
         if self.dim not in (2, 3):
@@ -125,6 +127,14 @@ class CalibrationSpec:
             raise ValueError(f"prefer = {self.prefer!r}: allowed 'Cu' or 'Tu'")
         if len(self.ucs_size) != self.dim:
             raise ValueError(f"ucs_size needs {self.dim} values for dim = {self.dim}")
+        from geodem.build.specimen import packing_recipe
+        from geodem.materials import STRUCTURE_KEYS
+
+        unknown = sorted(set(self.structure) - set(STRUCTURE_KEYS))
+        if unknown:
+            raise ValueError(f"structure keys {unknown}: allowed {', '.join(STRUCTURE_KEYS)}")
+        self.structure = {k: v for k, v in self.structure.items() if v is not None}
+        packing_recipe(self.structure, self.dim)
 
 
 def prior_guess(spec: CalibrationSpec) -> dict:
@@ -263,8 +273,8 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu"):
 
 # ---------------------------------------------------------------------------------- runs
 def _material_block(spec, el):
-    return dict({"rho": float(spec.targets["rho"]), "dim": spec.dim}, **{k: float(v) for k, v in
-                                                                         el.items()})
+    return dict({"rho": float(spec.targets["rho"]), "dim": spec.dim},
+                **{k: (v if isinstance(v, str) else float(v)) for k, v in el.items()})
 
 
 def _ucs_workflow(spec, el):
@@ -355,7 +365,7 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
     notes = []
     us, ys = [], []
     for it in range(1, int(spec.iterations) + 1):
-        el = from_unknowns(u, mu)
+        el = dict(from_unknowns(u, mu), **spec.structure)
         m = measure_fn(spec, el, out / "iterations" / f"{it:02d}")
         y = _outputs(m)
         rel = {k: (m[k] - tg[k]) / tg[k] for k in KEYS}
@@ -409,6 +419,7 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         "reachable": reachable,
         "notes": notes,
         "specimen": {"d_mean": spec.d_mean, "ucs_size": list(spec.ucs_size),
+                     **spec.structure,
                      "disc_diameter": spec.disc_diameter, "distri_rate": spec.distri_rate,
                      "seed": spec.seed, "strain_rate": spec.strain_rate,
                      "max_strain": spec.max_strain},
@@ -429,7 +440,8 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
 def calibration_block(summary: dict) -> dict:
     """The ``calibrated: {<dim>d: ...}`` entry of a material file."""
     return {f"{summary['dim']}d": {
-        "element": {k: float(v) for k, v in summary["element"].items()},
+        "element": {k: (v if isinstance(v, str) else float(v))
+                    for k, v in summary["element"].items()},
         "measured": {k: float(v) for k, v in summary["measured"].items()},
         "rel_errors": {k: round(float(v), 5) for k, v in summary["rel_errors"].items()},
         "converged": bool(summary["converged"]),

@@ -308,7 +308,8 @@ class HydrofracPlate(ModelBase):
             prep["overlap_over_xb"] = mult * RELAX_OVERLAP
             gap = CEMENT_GAP * params["xb"]
         st = new_state(x, r, 1.0, width=16)
-        rep = cement(st, gap, params, d_ref=d, rho=mat["rho"], n_across=self.n_across())
+        rep = cement(st, gap, params, d_ref=d, rho=mat["rho"], n_across=self.n_across(),
+                     seed=seed)
         # a plate of one thickness (d_mean): cement made each element a disc as thick as wide
         thick = d * prep["scale"] / dn  # 1 for the fine elements (their d_nom is d x scale)
         if np.any(thick != 1.0):

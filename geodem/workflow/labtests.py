@@ -85,13 +85,14 @@ def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> 
     from geodem.materials_library import load_material, to_micro
     from geodem.workflow.schema import LibraryMaterial, ScaledMicroMaterial
 
-    from geodem.materials import per_size
+    from geodem.materials import STRUCTURE_KEYS, per_size
     from geodem.workflow.schema import MicroMaterial
 
     m = cfg.materials[name]
     if isinstance(m, MicroMaterial) and d_mean is not None:
         el = {"kn": m.kn, "ks": m.ks, "xb": m.xb if m.xb is not None else 1.0e6 * d_mean,
-              "fs0": m.fs0 if m.fs0 is not None else 1.0e12, "mu": m.mu}
+              "fs0": m.fs0 if m.fs0 is not None else 1.0e12, "mu": m.mu,
+              **{k: getattr(m, k) for k in STRUCTURE_KEYS if getattr(m, k) is not None}}
         return SpecimenMaterial(m.rho, element=per_size(el, d_mean),
                                 label=f"element parameters at d = {d_mean:g} m")
     if isinstance(m, MacroMaterial):
@@ -106,7 +107,8 @@ def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> 
         if m.dim is not None and m.dim != dim:
             raise ValueError(f"material {name!r} was calibrated in {m.dim}-D; the model is "
                              f"{dim}-D (calibrate it for dim = {dim})")
-        el = {k: getattr(m, k) for k in ("kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2", "mu")}
+        el = {k: getattr(m, k) for k in ("kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2", "mu")
+              + STRUCTURE_KEYS if getattr(m, k) is not None}
         return SpecimenMaterial(m.rho, element=el, label="per-size element parameters")
     if isinstance(m, LibraryMaterial):
         try:

@@ -193,7 +193,26 @@ class MacroMaterial(_MaterialInfo):
         return self
 
 
-class MicroMaterial(_MaterialInfo):
+class _Structure(_MaterialInfo):
+    """Micro-structure of a bonded rock (``geodem.materials.STRUCTURE_KEYS``), read by the
+    specimen builders and stored by a calibration with the element parameters."""
+
+    bond_strength_weibull: Optional[float] = F(
+        None, gt=0, le=100, description="Weibull modulus of the per-bond strength factors "
+                                        "(heterogeneity: 2 very scattered, 10 nearly uniform; "
+                                        "unset: every bond as strong)")
+    packing: Optional[Literal["isotropic", "deposit"]] = F(
+        None, description="Specimen packing recipe (part of the rock: a calibration stores "
+                          "it): isotropic (radius expansion, stress-free bonds, flat faces) or "
+                          "deposit (2-D: gravity deposit, compaction, cut); unset: isotropic "
+                          "in 3-D, deposit in 2-D")
+    bond_gap: Optional[float] = F(
+        None, gt=0, le=0.3, description="Bond range with packing: isotropic: pairs whose "
+                                        "surface gap is below bond_gap x d_mean are bonded "
+                                        "(default 0.01; larger: more bonds per element)")
+
+
+class MicroMaterial(_Structure):
     """Element parameters given directly (as stored per element; a bond between two equal
     elements has half these stiffnesses, two springs in series)."""
 
@@ -209,7 +228,7 @@ class MicroMaterial(_MaterialInfo):
     mu: float = F(0.5, ge=0, description="Element friction coefficient")
 
 
-class ScaledMicroMaterial(_MaterialInfo):
+class ScaledMicroMaterial(_Structure):
     """Element parameters per element size (what ``geodem calibrate`` writes): an element of
     diameter d gets ``kn = kn_per_d d``, ``ks = ks_per_d d``, ``xb = xb_per_d d``,
     ``fs0 = fs0_per_d2 d^2`` and ``mu`` (PHYSICS.md section 2, mixed sizes), so the same

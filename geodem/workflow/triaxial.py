@@ -221,9 +221,11 @@ def box_specimen(size, d_mean, distri_rate, material: SpecimenMaterial, dim, see
        within the smallest ``xb`` bonded, at most ``2e-4 d_mean`` for unbreakable materials;
        balanced), Morton-sort.
 
-    3-D: :func:`geodem.build.specimen.isotropic_specimen` instead (isotropic compression by
-    radius expansion inside the box itself, every face flat at the box, bonds stress-free;
-    :mod:`geodem.build.isotropic`); the steps above are the 2-D recipe.
+    3-D, and a material whose ``packing`` is ``isotropic`` (:func:`geodem.build.specimen.
+    packing_recipe`): :func:`geodem.build.specimen.isotropic_specimen` instead (isotropic
+    compression by radius expansion inside the box itself, every face flat at the box, bonds
+    stress-free; :mod:`geodem.build.isotropic`), the same recipe as the UCS specimen's; the
+    steps above are the 2-D ``deposit`` recipe.
 
     The height is the packing's: close to ``size[-1]`` (within about one ``d_mean``). Returns
     ``(state, report)`` like ``make_specimen`` (``report["packing"]`` holds the packing
@@ -235,13 +237,16 @@ def box_specimen(size, d_mean, distri_rate, material: SpecimenMaterial, dim, see
     from geodem.materials import at_size, macro_to_micro
 
     size = np.asarray(size, float)
-    if dim == 3:
-        # 3-D: isotropic compression by radius expansion inside the box itself (flat faces)
+    from geodem.build.specimen import packing_recipe
+
+    if packing_recipe(material.element, dim) == "isotropic":
+        # isotropic compression by radius expansion inside the box itself (flat faces): the
+        # recipe of every 3-D specimen, and of a 2-D rock calibrated on it
         from geodem.build.shapes import Box
         from geodem.build.specimen import isotropic_specimen, specimen_params
 
         params = specimen_params(material.material, material.element, d_mean)
-        return isotropic_specimen(Box((0.0,) * 3, tuple(size)), d_mean, distri_rate, params,
+        return isotropic_specimen(Box((0.0,) * dim, tuple(size)), d_mean, distri_rate, params,
                                   material.rho, seed=seed, backend=backend)
     lo = np.zeros(dim)
     phi = 0.84 if dim == 2 else 0.63
@@ -273,7 +278,7 @@ def box_specimen(size, d_mean, distri_rate, material: SpecimenMaterial, dim, see
     # cement bonds the pairs within the smallest xb; "unbreakable" materials (huge xb) would
     # bond every pair in reach: bond those within 2e-4 d_mean (a rock's xb is ~1e-4 d) instead
     gap = None if params["xb"] <= 1e-3 * d_mean else 2e-4 * d_mean
-    rep = cement(sp, gap, params, d_ref=d_mean, rho=material.rho, backend=backend)
+    rep = cement(sp, gap, params, d_ref=d_mean, rho=material.rho, backend=backend, seed=seed)
     neighbors.spatial_sort(sp)
     rep["packing"] = {"deposit_steps": dep["steps"], "compact_steps": com["steps"],
                       "stiffen_steps": stiffen_steps, "stiffen_factor": factor,
