@@ -11,6 +11,9 @@
                   [--target-error E] [--speed-accuracy CSV] [--json]
     geodem sweep FILE.yaml --param a.b=1,2,3 [--param ...] [--zip] [--seeds N]
                  [--scheduler ADDRESS | --workers N] [--resume | --overwrite] -o DIR
+    geodem calibrate MATERIAL -o DIR [--dim D] [--packing P] [--bond-gap G] [--bond-weibull M]
+                     [--save]
+    geodem rock MATERIAL -o DIR [--dim D] [--packing P] [--bond-gap G] [--bond-weibull M]
     geodem schema [-o FILE]
 
 Backend choice for a run: ``--backend`` > the workflow's ``backend:`` key (``geodem run``) >
@@ -544,8 +547,9 @@ def calibrate_cmd(
                                                                  "specimens.")] = 2,
     iterations: Annotated[int, typer.Option("--iterations", min=1, max=20,
                                             help="Largest number of iterations.")] = 6,
-    d_mean: Annotated[float, typer.Option("--d-mean", min=1e-6, help="Element diameter of the "
-                                                                      "specimens [m].")] = 0.005,
+    d_mean: Annotated[Optional[float], typer.Option(
+        "--d-mean", min=1e-6, help="Element diameter of the specimens [m] (default 0.005 in "
+                                   "2-D, 0.01 in 3-D: about 800 and 2,200 elements).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Packing seed.")] = 0,
     prefer: Annotated[str, typer.Option("--prefer", help="Strength matched when the packing "
                                                          "cannot reach Cu / Tu: Cu or Tu.")] =
@@ -585,6 +589,8 @@ def calibrate_cmd(
         size = (0.1, 0.1, 0.2)
     else:
         size = (0.1, 0.2)
+    if d_mean is None:
+        d_mean = 0.01 if dim == 3 else 0.005
     if min(size) < 4 * d_mean:
         _fail(f"--d-mean {d_mean:g} m: allowed up to {min(size) / 4:g} m (the specimens are "
               f"{min(size):g} m across and need at least 4 elements)", USER_ERROR)
@@ -617,6 +623,77 @@ def calibrate_cmd(
         con.print(f"saved the {dim}-D calibration into {path}", highlight=False)
     if not summary["converged"]:
         raise typer.Exit(FAILURE)
+
+
+@app.command("rock", help=(
+    "Measure the rock a material's calibrated element parameters make: run the calibration's "
+    "UCS and Brazilian workflows once (specimens as geodem calibrate builds them) and print "
+    "E, nu, Cu, Tu and Cu / Tu against the lab values. --packing, --bond-gap and "
+    "--bond-weibull replace the stored micro-structure, to see what each does.\n\n"
+    "Writes summary.json (measured, targets, element, structure) and the two runs into "
+    "-o DIR. Exit status: 0 done, 1 a run failed, 2 invalid input."))
+@_guard
+def rock_cmd(
+    material: Annotated[str, typer.Argument(
+        metavar="MATERIAL", help="Library name (e.g. granite) or path of a material file.")],
+    out: Annotated[str, typer.Option("-o", "--out", help="Output directory (created).")],
+    dim: Annotated[int, typer.Option("--dim", min=2, max=3, help="Dimension.")] = 2,
+    packing: Annotated[Optional[str], typer.Option(
+        "--packing", help="Packing recipe: isotropic or deposit (2-D only).")] = None,
+    bond_gap: Annotated[Optional[float], typer.Option(
+        "--bond-gap", min=1e-4, max=0.3, help="Bond range / d_mean (isotropic).")] = None,
+    bond_weibull: Annotated[Optional[float], typer.Option(
+        "--bond-weibull", min=0.5, max=100, help="Weibull modulus of the bond strengths "
+                                                 "(unset: as stored).")] = None,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
+                                                                "existing -o DIR.")] = False,
+):
+    import json
+    from pathlib import Path
+
+    from geodem.labtests.calibrate import CalibrationSpec, measure
+    from geodem.materials_library import load_material
+
+    mat = load_material(material)
+    cal = (mat.calibrated or {}).get(f"{dim}d")
+    if cal is None:
+        _fail(f"{mat.name} has no {dim}-D calibration; run 'geodem calibrate {material} --dim "
+              f"{dim} --save' first", USER_ERROR)
+    o = Path(out)
+    if o.exists() and any(o.iterdir()) and not overwrite:
+        _fail(f"{out} exists and is not empty; choose another -o or add --overwrite",
+              USER_ERROR)
+    el = dict(cal["element"])
+    for key, value in (("packing", packing), ("bond_gap", bond_gap),
+                       ("bond_strength_weibull", bond_weibull)):
+        if value is not None:
+            el[key] = value
+    if packing == "deposit" and bond_gap is None:
+        el.pop("bond_gap", None)  # a bond range belongs to the isotropic recipe
+    sp = cal.get("specimen", {})
+    size = tuple(sp.get("ucs_size") or ((0.1, 0.1, 0.2) if dim == 3 else (0.1, 0.2)))
+    structure = {k: el[k] for k in ("packing", "bond_gap", "bond_strength_weibull") if k in el}
+    try:
+        spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim,
+                               d_mean=float(sp.get("d_mean", 0.01 if dim == 3 else 0.005)),
+                               ucs_size=size, seed=int(sp.get("seed", 0)), iterations=1,
+                               structure=structure)
+    except ValueError as exc:
+        _fail(f"--packing / --bond-gap / --bond-weibull: {exc}", USER_ERROR)
+    con = _out()
+    con.print(f"measuring {mat.name} ({dim}-D, {structure}) -> {out}", highlight=False)
+    m = measure(spec, el, o)
+    t = spec.targets
+    summary = {"material": mat.name, "dim": dim, "structure": structure, "element": el,
+               "measured": {k: m[k] for k in ("E", "nu", "Cu", "Tu")},
+               "targets": {k: t[k] for k in ("E", "nu", "Cu", "Tu")},
+               "ratio": m["Cu"] / m["Tu"], "target_ratio": t["Cu"] / t["Tu"],
+               "wall_time_s": m["wall_time_s"]}
+    (o / "summary.json").write_text(json.dumps(summary, indent=2))
+    con.print(f"E {m['E']:.4g} Pa ({m['E'] / t['E'] - 1:+.1%}), nu {m['nu']:.3f} "
+              f"({m['nu'] - t['nu']:+.3f}), Cu {m['Cu']:.4g} Pa ({m['Cu'] / t['Cu'] - 1:+.1%}), "
+              f"Tu {m['Tu']:.4g} Pa ({m['Tu'] / t['Tu'] - 1:+.1%}), Cu / Tu {summary['ratio']:.3g} "
+              f"(lab {summary['target_ratio']:.3g}); {m['wall_time_s']:.0f} s", highlight=False)
 
 
 def _float_list(value: Optional[str], name: str, integer=False):
