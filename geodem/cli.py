@@ -528,6 +528,18 @@ def _print_run_summary(con, s: dict, out: str) -> None:
     con.print(f"wrote {escape(', '.join(s.get('files', [])))} to {escape(out)}", highlight=False)
 
 
+MaterialArg = Annotated[str, typer.Argument(
+    metavar="MATERIAL", help="Library name (e.g. granite) or path of a material file.")]
+OutDirOpt = Annotated[str, typer.Option("-o", "--out", help="Output directory (created).")]
+BondGapOpt = Annotated[Optional[float], typer.Option(
+    "--bond-gap", min=1e-4, max=0.3, help="Bond range (isotropic packing): pairs whose surface "
+                                          "gap is below this x d_mean are bonded (default "
+                                          "0.01; in 2-D a larger range lowers Cu / Tu).")]
+BondWeibullOpt = Annotated[Optional[float], typer.Option(
+    "--bond-weibull", min=0.5, max=100, help="Weibull modulus of the per-bond strength "
+                                             "scatter (default: none, or as stored).")]
+
+
 @app.command("calibrate", help=(
     "Calibrate a library material: find element parameters whose virtual UCS and Brazilian "
     "tests give its E, nu, UCS (Cu) and tensile strength (Tu).\n\n"
@@ -540,9 +552,8 @@ def _print_run_summary(con, s: dict, out: str) -> None:
     "failed, 2 invalid input."))
 @_guard
 def calibrate_cmd(
-    material: Annotated[str, typer.Argument(
-        metavar="MATERIAL", help="Library name (e.g. granite) or path of a material file.")],
-    out: Annotated[str, typer.Option("-o", "--out", help="Output directory (created).")],
+    material: MaterialArg,
+    out: OutDirOpt,
     dim: Annotated[int, typer.Option("--dim", min=2, max=3, help="Dimension of the "
                                                                  "specimens.")] = 2,
     iterations: Annotated[int, typer.Option("--iterations", min=1, max=20,
@@ -560,13 +571,8 @@ def calibrate_cmd(
                                                            "with the result: isotropic or "
                                                            "deposit (2-D only).")] =
     "isotropic",
-    bond_gap: Annotated[Optional[float], typer.Option(
-        "--bond-gap", min=1e-4, max=0.3, help="Bond range (isotropic packing): pairs whose "
-                                              "surface gap is below this x d_mean are bonded "
-                                              "(default 0.01; larger lowers Cu / Tu).")] = None,
-    bond_weibull: Annotated[Optional[float], typer.Option(
-        "--bond-weibull", min=0.5, max=100, help="Weibull modulus of the per-bond strength "
-                                                 "scatter (default: none).")] = None,
+    bond_gap: BondGapOpt = None,
+    bond_weibull: BondWeibullOpt = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
     backend: Annotated[Optional[str], typer.Option(
@@ -634,17 +640,13 @@ def calibrate_cmd(
     "-o DIR. Exit status: 0 done, 1 a run failed, 2 invalid input."))
 @_guard
 def rock_cmd(
-    material: Annotated[str, typer.Argument(
-        metavar="MATERIAL", help="Library name (e.g. granite) or path of a material file.")],
-    out: Annotated[str, typer.Option("-o", "--out", help="Output directory (created).")],
+    material: MaterialArg,
+    out: OutDirOpt,
     dim: Annotated[int, typer.Option("--dim", min=2, max=3, help="Dimension.")] = 2,
     packing: Annotated[Optional[str], typer.Option(
         "--packing", help="Packing recipe: isotropic or deposit (2-D only).")] = None,
-    bond_gap: Annotated[Optional[float], typer.Option(
-        "--bond-gap", min=1e-4, max=0.3, help="Bond range / d_mean (isotropic).")] = None,
-    bond_weibull: Annotated[Optional[float], typer.Option(
-        "--bond-weibull", min=0.5, max=100, help="Weibull modulus of the bond strengths "
-                                                 "(unset: as stored).")] = None,
+    bond_gap: BondGapOpt = None,
+    bond_weibull: BondWeibullOpt = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
 ):
