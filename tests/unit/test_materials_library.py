@@ -29,7 +29,10 @@ def test_file_loads_with_sources(name):
     # calibrated: null until 'geodem calibrate --save'; then per dimension with the element keys
     for dim, block in (m.calibrated or {}).items():
         assert dim in ("2d", "3d")
-        assert set(block["element"]) == {"kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2", "mu"}
+        assert set(block["element"]) == {"kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2", "mu",
+                                         "packing"}
+        # the recipe the calibration was made on, stored with it (every test builds it)
+        assert block["element"]["packing"] == block["specimen"]["packing"] == "isotropic"
         assert set(block["measured"]) == {"E", "nu", "Tu", "Cu"}
     for k in PROPERTY_NAMES:
         s = getattr(m.properties, k).source
