@@ -34,20 +34,26 @@ def _shipped(tmp_path, name):
     return summary
 
 
-def test_the_triaxial_test_at_zero_confinement_is_the_ucs_test(tmp_path):
+def _ucs_and_triaxial(tmp_path, spec, rate):
+    """UCS strength and triaxial strength at sigma3 = 0 of one specimen, at one strain rate."""
     ucs = _run(tmp_path, "ucs", {
         "metadata": {"name": "ucs", "seed": 0},
-        "model": dict(SPECIMEN, type="specimen"), "materials": ROCK,
-        "steps": [{"kind": "uniaxial", "name": "ucs", "strain_rate": 1.0, "max_strain": 0.02,
+        "model": dict(spec, type="specimen"), "materials": ROCK,
+        "steps": [{"kind": "uniaxial", "name": "ucs", "strain_rate": rate, "max_strain": 0.02,
                    "drop": 0.7}]})
     tri = _run(tmp_path, "triaxial", {
         "metadata": {"name": "triaxial", "seed": 0},
-        "model": dict(SPECIMEN, type="triaxial_box"), "materials": ROCK,
+        "model": dict(spec, type="triaxial_box"), "materials": ROCK,
         "steps": [{"kind": "triaxial", "name": "triaxial", "confining_pressures": [0.0],
-                   "strain_rate": 1.0, "max_strain": 0.02, "drop": 0.5}]})
-    strength = tri["peak_strengths"][0]
-    assert strength is not None, "the sigma3 = 0 stage has not peaked"
-    assert strength / ucs["ucs"] == pytest.approx(1.0, abs=0.05), (strength, ucs["ucs"])
+                   "strain_rate": rate, "max_strain": 0.02, "drop": 0.5}]})
+    assert tri["peak_strengths"][0] is not None, "the sigma3 = 0 stage has not peaked"
+    return ucs["ucs"], tri["peak_strengths"][0]
+
+
+def test_the_triaxial_test_at_zero_confinement_is_the_ucs_test(tmp_path):
+    # measured: 78.0 MPa (UCS) and 78.2 MPa (triaxial)
+    ucs, tri = _ucs_and_triaxial(tmp_path, SPECIMEN, 1.0)
+    assert tri / ucs == pytest.approx(1.0, abs=0.05), (tri, ucs)
 
 
 def test_the_brazilian_test_gives_the_lab_tensile_strength(tmp_path):
@@ -56,9 +62,21 @@ def test_the_brazilian_test_gives_the_lab_tensile_strength(tmp_path):
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "direct tension of the 2-D isotropic sandstone gives 1.04 MPa against the Brazilian 4.2 "
+    "direct tension of the 2-D isotropic sandstone gives 1.00 MPa against the Brazilian 4.20 "
     "(deposit packing: 0.91 against 9.5): the bonded-disc model's Brazilian/direct ratio is "
     "about 4, the lab's about 1; Tu is calibrated on the Brazilian test"))
 def test_the_direct_tension_test_gives_the_lab_tensile_strength(tmp_path):
     s = _shipped(tmp_path, "direct_tension")
     assert s["tensile_strength"] / SANDSTONE["Tu"] == pytest.approx(1.0, abs=0.15)
+
+
+@pytest.mark.slow
+@pytest.mark.validation
+@pytest.mark.xfail(strict=True, reason=(
+    "3-D sandstone, 0.1 x 0.1 x 0.2 m at d_mean 10 mm, strain rate 0.2 /s: UCS test 74.9 MPa, "
+    "triaxial box at sigma3 = 0 67.4 MPa (-10 %): the head-on wall platens hold the ends by "
+    "friction capped at the rock's mu, the UCS test's end layers are bonded"))
+def test_the_3d_triaxial_test_at_zero_confinement_is_the_ucs_test(tmp_path):
+    spec = dict(SPECIMEN, dim=3, size=[0.1, 0.1, 0.2], d_mean=0.01)
+    ucs, tri = _ucs_and_triaxial(tmp_path, spec, 0.2)
+    assert tri / ucs == pytest.approx(1.0, abs=0.05), (tri, ucs)
