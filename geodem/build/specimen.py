@@ -32,8 +32,9 @@
       displacement), cut the shape (centres inside; specimen bounding box starting at the
       origin), cement, Morton-sort (:func:`spatial_sort`).
 
-    The recipe is part of the rock: the same element parameters give a 2-D sandstone Cu / Tu of
-    7.9 on ``deposit`` and 17.7 on ``isotropic`` (docs/calibration.md, "Reaching real rocks").
+    The recipe is part of the rock: the library sandstone's 2-D element parameters give Cu / Tu
+    17.7 on ``isotropic`` (as calibrated) and 9.7 on ``deposit`` (docs/calibration.md, "Reaching
+    real rocks").
     Every element is in group ``"specimen"``; platens are for the caller.
 """
 from __future__ import annotations
