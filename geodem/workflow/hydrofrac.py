@@ -271,11 +271,18 @@ class HydrofracPlate(ModelBase):
         from geodem.core.neighbors import spatial_sort
         from geodem.core.state import new_state
         from geodem.workflow.brazilian import prune_loose
-        from geodem.workflow.labtests import specimen_material
+        from geodem.workflow.labtests import SpecimenMaterial, specimen_material
         from geodem.workflow.models import BuildError
 
         d, c, centre = self.d_mean, self.coarsen, self.centre
         sm = specimen_material(cfg, self.material, 2, d)
+        recipe = ("packing", "bond_gap")  # the bond-strength scatter is applied by cement
+        if sm.element and any(sm.element.get(k) is not None for k in recipe):
+            # said, not silent: the graded plate has its own packing (graded_packing)
+            shown = {k: sm.element[k] for k in recipe if sm.element.get(k) is not None}
+            sm = SpecimenMaterial(sm.rho, sm.macro, sm.element, sm.label, sm.warnings + (
+                f"the graded plate is packed by graded_packing, not by the material's "
+                f"micro-structure {shown}: the rock is not exactly the calibrated one",))
         mat = sm.material
         params = specimen_params(mat, sm.element, d)
         lo, hi = np.zeros(2), np.full(2, self.size)

@@ -91,6 +91,14 @@ def element_params(cfg, name: str, d: float, dim: int, path=("material",)) -> di
             raise BuildError(path, f"material {name!r} has no calibrated {dim}-D element "
                                    "parameters; a lattice model needs element parameters "
                                    "(or rock properties in 3-D)")
+        if sm.element.get("bond_strength_weibull") is not None:
+            # the lattice and granular builders bond without per-bond factors: taking the
+            # material would silently drop its strength scatter
+            raise BuildError(("materials", name), f"material {name!r} has "
+                             f"bond_strength_weibull = {sm.element['bond_strength_weibull']:g}, "
+                             "which this model's builder does not apply; allowed: a material "
+                             "without it here, or a specimen-type model (specimen, "
+                             "triaxial_box, brazilian_disc, hydrofrac_plate)")
         return dict(at_size(sm.element, d), rho=sm.rho, mass=None)
     xb = mat.xb if mat.xb is not None else 1.0e6 * d
     fs0 = mat.fs0 if mat.fs0 is not None else 1.0e12

@@ -70,3 +70,24 @@ def test_the_modulus_travels_with_the_size_free_parameters():
     assert scaled["bond_strength_weibull"] == 4.0
     assert at_size(scaled, 0.02)["bond_strength_weibull"] == 4.0
     assert "bond_strength_weibull" not in per_size(dict(el, bond_strength_weibull=None), 0.01)
+
+
+def test_a_builder_without_per_bond_factors_refuses_a_scattered_material(tmp_path):
+    # the lattice block bonds its own lattice: it would silently drop the scatter
+    import yaml
+
+    from geodem.workflow import run_workflow
+    from geodem.workflow.errors import WorkflowError
+
+    doc = {"metadata": {"name": "scatter", "seed": 0},
+           "model": {"type": "lattice_block", "dim": 2, "counts": [4, 4], "diameter": 0.01,
+                     "material": "rock"},
+           "materials": {"rock": {"rho": 2500.0, "kn_per_d": 1e10, "ks_per_d": 5e9,
+                                  "xb_per_d": 1e-4, "fs0_per_d2": 1e6, "mu": 0.5,
+                                  "bond_strength_weibull": 3.0}},
+           "steps": [{"kind": "run", "name": "run", "nsteps": 10}]}
+    path = tmp_path / "w.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(WorkflowError, match="bond_strength_weibull = 3, which this model's "
+                                            "builder does not apply"):
+        run_workflow(path, tmp_path / "out", echo=False, progress=False)
