@@ -528,6 +528,17 @@ def _print_run_summary(con, s: dict, out: str) -> None:
     con.print(f"wrote {escape(', '.join(s.get('files', [])))} to {escape(out)}", highlight=False)
 
 
+def _fresh_out_dir(out: str, overwrite: bool):
+    """``-o DIR`` as a Path; refused (exit 2) when it holds files and ``--overwrite`` is off."""
+    from pathlib import Path
+
+    o = Path(out)
+    if o.exists() and any(o.iterdir()) and not overwrite:
+        _fail(f"{out} exists and is not empty; choose another -o or add --overwrite",
+              USER_ERROR)
+    return o
+
+
 MaterialArg = Annotated[str, typer.Argument(
     metavar="MATERIAL", help="Library name (e.g. granite) or path of a material file.")]
 OutDirOpt = Annotated[str, typer.Option("-o", "--out", help="Output directory (created).")]
@@ -578,7 +589,6 @@ def calibrate_cmd(
     backend: Annotated[Optional[str], typer.Option(
         "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
 ):
-    from pathlib import Path
 
     from geodem.labtests.calibrate import CalibrationSpec, calibrate, save_calibration
     from geodem.materials_library import load_material, material_path
@@ -587,10 +597,7 @@ def calibrate_cmd(
         _fail(f"--prefer {prefer!r}: allowed: Cu or Tu", USER_ERROR)
     mat = load_material(material)
     path = material_path(material)
-    o = Path(out)
-    if o.exists() and any(o.iterdir()) and not overwrite:
-        _fail(f"{out} exists and is not empty; choose another -o or add --overwrite",
-              USER_ERROR)
+    o = _fresh_out_dir(out, overwrite)
     if dim == 3:
         size = (0.1, 0.1, 0.2)
     else:
@@ -651,9 +658,9 @@ def rock_cmd(
                                                                 "existing -o DIR.")] = False,
 ):
     import json
-    from pathlib import Path
 
     from geodem.labtests.calibrate import CalibrationSpec, measure
+    from geodem.materials import STRUCTURE_KEYS
     from geodem.materials_library import load_material
 
     mat = load_material(material)
@@ -661,10 +668,7 @@ def rock_cmd(
     if cal is None:
         _fail(f"{mat.name} has no {dim}-D calibration; run 'geodem calibrate {material} --dim "
               f"{dim} --save' first", USER_ERROR)
-    o = Path(out)
-    if o.exists() and any(o.iterdir()) and not overwrite:
-        _fail(f"{out} exists and is not empty; choose another -o or add --overwrite",
-              USER_ERROR)
+    o = _fresh_out_dir(out, overwrite)
     el = dict(cal["element"])
     for key, value in (("packing", packing), ("bond_gap", bond_gap),
                        ("bond_strength_weibull", bond_weibull)):
@@ -674,7 +678,7 @@ def rock_cmd(
         el.pop("bond_gap", None)  # a bond range belongs to the isotropic recipe
     sp = cal.get("specimen", {})
     size = tuple(sp.get("ucs_size") or ((0.1, 0.1, 0.2) if dim == 3 else (0.1, 0.2)))
-    structure = {k: el[k] for k in ("packing", "bond_gap", "bond_strength_weibull") if k in el}
+    structure = {k: el[k] for k in STRUCTURE_KEYS if k in el}
     try:
         spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim,
                                d_mean=float(sp.get("d_mean", 0.01 if dim == 3 else 0.005)),

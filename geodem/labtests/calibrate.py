@@ -19,24 +19,24 @@ strength; ``mu`` stays at the lattice value from ``mu_i``). Measurements
   leaves nu and both strengths unchanged (the forces for a given stress do not change);
 * scaling both breaking forces by ``b`` scales both strengths by ``b`` and changes nothing else.
 
-So E / kn is a function of the packing and ``s`` only, nu a function of ``s`` only, Cu / Tu
-a function of ``rho_s`` only (small cross-couplings aside), and each strength / F_t a function
-of ``rho_s``. The solver (:func:`next_unknowns`) uses exactly that: two 1-D monotone root
-finds, ``nu(s) = nu_t`` and ``Cu/Tu(rho_s) = ratio_t``, by bracketed secants over every sample
-so far (interpolation between the samples that bracket the target; otherwise a step with the
-measured secant, its slope kept in the physical range and its length limited); then the two
-levels follow by the exact scalings, ``ln kn = ln E_t - (ln E - ln kn)(s)`` and
-``ln F_t = ln S_t - (ln S - ln F_t)(rho_s)`` (S the preferred strength), interpolated from the
-samples. Iteration 1 runs the prior guess (lattice conversion times rates measured on random
-packings). Every iteration builds the same packing (same seed) and runs the UCS and Brazilian
-workflows, whose files are kept under ``iterations/NN/``. The best iteration (smallest largest
-normalised error) is the result.
+So ``ln E - ln kn`` and each ``ln strength - ln F_t`` are functions of the shape variables
+``x = (s, ln rho_s)`` only, and so are nu and Cu / Tu. The solver (:func:`next_unknowns`) fits
+each of them by a local weighted plane over every sample so far (:func:`local_plane`, a ridge
+toward the prior slopes), solves ``nu(x) = nu_t`` and ``Cu/Tu(x) = ratio_t`` together for ``x``
+(one step at most), and sets the two levels by the exact scalings. Iteration 1 runs the prior
+guess (lattice conversion times rates measured on random packings). Every iteration builds the
+same packing (same seed) with the spec's micro-structure (``structure``: packing recipe, bond
+range, bond-strength scatter, stored with the result) and runs the UCS and Brazilian
+workflows, whose files are kept under ``iterations/NN/``. It stops when every reachable target
+is met or after :data:`STALL` iterations without a better one; the best iteration (smallest
+largest normalised error) is the result.
 
 (An earlier Newton solver with a Broyden update of the four unknown slopes failed on granite:
 steps of ``s`` below the measurement noise gave a near-zero secant of nu(s), and the next step
-changed ``s`` by 0.4 and E by -58 %.)
+changed ``s`` by 0.4 and E by -58 %. A later one solved nu in ``s`` alone and Cu / Tu in
+``rho_s`` alone; nu depends on ``rho_s`` too, and four rocks did not converge.)
 
-Tolerances (issue targets): E, Cu, Tu within 5 %, nu within 0.03 absolute. A target outside
+Tolerances: E, Cu, Tu within 5 %, nu within 0.03 absolute. A target outside
 what the packing can reach (nu beyond the nu(s) range of the packing, Cu/Tu beyond the ratio
 the bond law allows) is reported as unreachable with the reason.
 """
@@ -158,8 +158,8 @@ def prior_guess(spec: CalibrationSpec) -> dict:
 #: slope ranges of the four response functions (physical signs; measured on random packings)
 SLOPES = {"nu_s": (-1.2, -0.2), "lnE_s": (-1.0, 3.0), "ratio_rho": (0.05, 1.5),
           "strength_rho": (-0.2, 1.5)}
-#: smallest change of a variable a secant may learn from: measurements repeat to ~1e-3 (nu)
-#: and ~1 % (strengths) between packings of neighbouring parameters
+#: smallest spread of ln rho_s over which a saturated strength ratio is believed: measurements
+#: repeat to ~1e-3 (nu) and ~1 % (strengths) between packings of neighbouring parameters
 MIN_SECANT_STEP = 0.05
 #: iterations without a better score after which the calibration stops (measurement noise
 #: of ~1 % in the strengths leaves a target at the edge of the reachable region unmet)
@@ -168,74 +168,6 @@ STALL = 3
 #: tensile bond breakage and more shear strength no longer raises Cu (measured on granite:
 #: Cu/Tu = 8.4, 7.4, 8.5 for rho_s over a factor 9)
 RATIO_SATURATION = 0.1
-
-
-def _slope(xs, ys, x, prior, rng):
-    """Local slope of samples ``(xs, ys)`` near ``x``: the secant of the two samples nearest
-    ``x`` when they are at least ``MIN_SECANT_STEP`` apart, else ``prior``; clipped to ``rng``."""
-    if len(xs) >= 2:
-        order = np.argsort(np.abs(np.asarray(xs) - x))
-        i, j = order[0], order[1]
-        for j in order[1:]:
-            if abs(xs[j] - xs[i]) >= MIN_SECANT_STEP:
-                return float(np.clip((ys[j] - ys[i]) / (xs[j] - xs[i]), *rng))
-    return float(np.clip(prior, *rng))
-
-
-def interpolate(xs, ys, x, prior, rng) -> float:
-    """Value at ``x`` of a smooth function sampled at ``(xs, ys)``: linear between the nearest
-    samples on either side (the latest of samples at the same ``x``: the function also drifts
-    with the other variables), else extrapolated from the nearest one with :func:`_slope`."""
-    xs, ys = np.asarray(xs, float), np.asarray(ys, float)
-    left, right = xs <= x, xs >= x
-    if left.any() and right.any():
-        # among samples at the same x the latest wins: it is the nearest in the other variables
-        i = int(np.flatnonzero(left & (xs == xs[left].max()))[-1])
-        j = int(np.flatnonzero(right & (xs == xs[right].min()))[-1])
-        if xs[j] - xs[i] < 1e-12:
-            return float(ys[max(i, j)])
-        w = (x - xs[i]) / (xs[j] - xs[i])
-        return float((1 - w) * ys[i] + w * ys[j])
-    k = int(np.argmin(np.abs(xs - x)))
-    return float(ys[k] + _slope(xs, ys, x, prior, rng) * (x - xs[k]))
-
-
-def solve_1d(xs, ys, target, prior, rng, bounds, max_step, saturation=0.0):
-    """``x`` with ``y(x) = target`` for a monotone function (slope sign of ``prior``) sampled at
-    ``(xs, ys)``: between the two samples that bracket the target nearest to it (linear
-    interpolation) when there are such, else a secant (or ``prior``) step from the sample
-    nearest the target, at most ``max_step`` long. Returns ``(x, beyond)``: ``beyond`` is True
-    (an unreachable target) when a sample at a bound is still short of the target and the root
-    lies outside ``bounds``, or when the function has saturated: the target lies beyond every
-    sample at larger ``x`` and the secant between the two samples furthest toward it (at least
-    ``MIN_SECANT_STEP`` apart) is below ``saturation`` in magnitude (``x`` is then that of the
-    sample nearest the target)."""
-    xs, ys = np.asarray(xs, float), np.asarray(ys, float)
-    d = (ys - target) * np.sign(prior)  # > 0: x is past the root
-    below, above = d < 0, d > 0
-    if below.any() and above.any():
-        i = np.flatnonzero(below)[np.argmax(d[below])]
-        j = np.flatnonzero(above)[np.argmin(d[above])]
-        if (ys[j] - ys[i]) * np.sign(prior) * (xs[j] - xs[i]) > 0:  # consistent: interpolate
-            x = xs[i] + (target - ys[i]) * (xs[j] - xs[i]) / (ys[j] - ys[i])
-        else:  # noise broke monotonicity: bisect
-            x = 0.5 * (xs[i] + xs[j])
-        return float(np.clip(x, *bounds)), False
-    k = int(np.argmin(np.abs(d)))
-    toward = -np.sign(d[k]) * np.sign(prior)  # the direction of x in which y approaches
-    # a function saturates upwards (more shear strength stops raising Cu/Tu); downwards it
-    # keeps falling (the bonds then fail in shear), so only a target above is flagged
-    if saturation > 0.0 and len(xs) >= 2 and toward > 0:
-        order = np.argsort(toward * xs)[::-1]  # furthest toward the target first
-        a, b = order[0], order[1]
-        if abs(xs[a] - xs[b]) >= MIN_SECANT_STEP and \
-                abs((ys[a] - ys[b]) / (xs[a] - xs[b])) < saturation:
-            return float(xs[k]), True
-    x = xs[k] + (target - ys[k]) / _slope(xs, ys, xs[k], prior, rng)
-    x = float(np.clip(x, xs[k] - max_step, xs[k] + max_step))
-    lo, hi = bounds
-    beyond = (x < lo and abs(xs[k] - lo) < 1e-9) or (x > hi and abs(xs[k] - hi) < 1e-9)
-    return float(np.clip(x, lo, hi)), bool(beyond)
 
 
 #: the shape variables (ks/kn, ln rho_s) in units of their largest step per iteration: the

@@ -236,13 +236,11 @@ def box_specimen(size, d_mean, distri_rate, material: SpecimenMaterial, dim, see
     steps)."""
     from geodem.build import packing
     from geodem.build.shapes import subset_state
-    from geodem.build.specimen import cement
+    from geodem.build.specimen import cement, packing_recipe
     from geodem.core import groups, neighbors
     from geodem.materials import at_size, macro_to_micro
 
     size = np.asarray(size, float)
-    from geodem.build.specimen import packing_recipe
-
     if packing_recipe(material.element, dim) == "isotropic":
         # isotropic compression by radius expansion inside the box itself (flat faces): the
         # recipe of every 3-D specimen, and of a 2-D rock calibrated on it

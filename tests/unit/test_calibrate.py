@@ -3,7 +3,6 @@
 import json
 import math
 
-import numpy as np
 import pytest
 
 from geodem.labtests import calibrate as C
@@ -95,31 +94,6 @@ def test_save_calibration_keeps_the_file_and_loads_back(tmp_path):
     assert mat.calibrated["2d"]["element"]["kn_per_d"] == pytest.approx(out["element"]["kn_per_d"])
 
 
-def test_solve_1d_interpolates_between_the_bracketing_samples():
-    # y = 2x on samples at 0 and 1 (target 1.5): the root is 0.75 exactly
-    x, beyond = C.solve_1d([0.0, 1.0], [0.0, 2.0], 1.5, 1.0, (0.1, 5.0), (0.0, 2.0), 0.5)
-    assert x == pytest.approx(0.75) and not beyond
-
-
-def test_solve_1d_limits_an_unbracketed_step_and_clamps_a_flat_secant():
-    # a noisy secant says slope -0.01 (nu barely moved): clamped to -0.2 -> the step toward
-    # nu = 0.25 from (0.55, 0.27) is 0.1, not 2.0
-    x, _ = C.solve_1d([0.50, 0.55], [0.2705, 0.2700], 0.25, -0.5, (-1.2, -0.2), (0.0, 1.5),
-                      0.2)
-    assert x == pytest.approx(0.55 + 0.02 / 0.2)
-    # far from the target the step is limited to max_step
-    x, _ = C.solve_1d([0.5], [0.26], -0.5, -0.5, (-1.2, -0.2), (0.0, 1.5), 0.2)
-    assert x == pytest.approx(0.7)
-
-
-def test_solve_1d_reports_a_target_beyond_the_bound_only_after_sampling_the_bound():
-    lo_hi = (0.0, 1.0)
-    x, beyond = C.solve_1d([0.9], [0.9], 2.0, 1.0, (0.1, 5.0), lo_hi, 0.5)
-    assert x == pytest.approx(1.0) and not beyond  # not sampled at the bound yet
-    x, beyond = C.solve_1d([0.9, 1.0], [0.9, 1.0], 2.0, 1.0, (0.1, 5.0), lo_hi, 0.5)
-    assert x == pytest.approx(1.0) and beyond
-
-
 def test_noisy_measurements_do_not_derail_the_calibration(tmp_path):
     # the synthetic packing with +-0.004 of deterministic noise on nu and +-2 % on strengths
     def noisy(spec_, el, folder):
@@ -131,31 +105,6 @@ def test_noisy_measurements_do_not_derail_the_calibration(tmp_path):
 
     out = C.calibrate(spec(), tmp_path, measure_fn=noisy)
     assert out["converged"] and out["iterations"] <= 6
-
-
-def test_solve_1d_reports_a_saturated_function():
-    # ln(Cu/Tu) flat (2.1, 2.12) over a factor e^1.1 of rho_s, target 3.0: saturated
-    x, beyond = C.solve_1d([0.0, 1.1], [2.1, 2.12], 3.0, 0.6, (0.05, 1.5), (-3.0, 3.9), 1.1,
-                           saturation=0.1)
-    assert beyond and x == pytest.approx(1.1)
-    # still rising: keep stepping
-    x, beyond = C.solve_1d([0.0, 1.1], [2.1, 2.5], 3.0, 0.6, (0.05, 1.5), (-3.0, 3.9), 1.1,
-                           saturation=0.1)
-    assert not beyond and x > 1.1
-
-
-def test_interpolate_takes_the_latest_of_samples_at_the_same_point():
-    # rho_s held at its bound while the strength level is corrected: the newest sample counts
-    assert C.interpolate([3.9, 3.9, 3.9], [3.81, 3.66, 3.59], 3.9, 0.75, (-0.2, 1.5)) == 3.59
-    assert C.interpolate([0.0, 1.0], [0.0, 2.0], 0.25, 1.0, (0.1, 5.0)) == pytest.approx(0.5)
-
-
-def test_a_target_below_every_sample_is_not_called_saturated():
-    # mudstone: Cu/Tu measured 13.1, 12.8 (flat) against a target of 10: lower rho_s is needed,
-    # and the ratio does fall there (shear failure of the bonds), so keep stepping down
-    x, beyond = C.solve_1d([3.25, 2.80], [2.573, 2.548], 2.303, 0.6, (0.05, 1.5), (-3.0, 3.9),
-                           1.1, saturation=0.1)
-    assert not beyond and x < 2.80
 
 
 def coupled(spec_, el, folder):
