@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 import os
 import platform
 import sys
@@ -552,10 +553,11 @@ BondWeibullOpt = Annotated[Optional[float], typer.Option(
 
 
 @app.command("calibrate", help=(
-    "Calibrate a library material: find element parameters whose virtual UCS and Brazilian "
-    "tests give its E, nu, UCS (Cu) and tensile strength (Tu).\n\n"
-    "Each iteration builds the same specimens, runs the two lab workflows (kept under "
-    "DIR/iterations/NN/) and takes a Newton step with the model's exact scalings. Writes "
+    "Calibrate a library material: find element parameters whose virtual UCS and direct "
+    "tension tests give its E, nu, UCS (Cu) and tensile strength (Tu); the Brazilian disc is "
+    "run once with the result as a check.\n\n"
+    "Each iteration builds the same specimen, runs the two lab workflows on it (kept under "
+    "DIR/iterations/NN/) and takes a step with the model's exact scalings. Writes "
     "summary.json (targets, measured, rel_errors, iterations, wall_time_s), history.csv, "
     "calibrated.yaml and convergence.png into -o DIR; --save also stores the result in the "
     "material file's 'calibrated' block.\n\n"
@@ -619,6 +621,13 @@ def calibrate_cmd(
               highlight=False)
 
     def report(i, rec):
+        if i == "brazilian":
+            off = rec["crack_start_offset"]
+            con.print(f"check: Brazilian disc {rec['tensile_strength']:.4g} Pa = "
+                      f"{rec['over_target']:.3g} x Tu (first cracks at "
+                      f"{off if off is not None else math.nan:.2f} R from the centre); "
+                      f"{rec['wall_time_s']:.0f} s", highlight=False)
+            return
         m, e = rec["measured"], rec["rel_errors"]
         con.print(f"iteration {i}: E {m['E']:.4g} Pa ({e['E']:+.1%}), nu {m['nu']:.3f} "
                   f"({rec['nu_abs_error']:+.3f}), Cu {m['Cu']:.4g} Pa ({e['Cu']:+.1%}), "
@@ -640,8 +649,9 @@ def calibrate_cmd(
 
 @app.command("rock", help=(
     "Measure the rock a material's calibrated element parameters make: run the calibration's "
-    "UCS and Brazilian workflows once (specimens as geodem calibrate builds them) and print "
-    "E, nu, Cu, Tu and Cu / Tu against the lab values. --packing, --bond-gap and "
+    "UCS, direct-tension and Brazilian workflows once (specimens as geodem calibrate builds "
+    "them) and print E, nu, Cu, Tu (direct tension), Cu / Tu and the Brazilian strength "
+    "against the lab values. --packing, --bond-gap and "
     "--bond-weibull replace the stored micro-structure, to see what each does.\n\n"
     "Writes summary.json (measured, targets, element, structure) and the two runs into "
     "-o DIR. Exit status: 0 done, 1 a run failed, 2 invalid input."))
@@ -659,7 +669,7 @@ def rock_cmd(
 ):
     import json
 
-    from geodem.labtests.calibrate import CalibrationSpec, measure
+    from geodem.labtests.calibrate import CalibrationSpec, brazilian_check, measure
     from geodem.materials import STRUCTURE_KEYS
     from geodem.materials_library import load_material
 
@@ -689,17 +699,20 @@ def rock_cmd(
     con = _out()
     con.print(f"measuring {mat.name} ({dim}-D, {structure}) -> {out}", highlight=False)
     m = measure(spec, el, o)
+    b = brazilian_check(spec, el, o / "brazilian")
     t = spec.targets
     summary = {"material": mat.name, "dim": dim, "structure": structure, "element": el,
                "measured": {k: m[k] for k in ("E", "nu", "Cu", "Tu")},
                "targets": {k: t[k] for k in ("E", "nu", "Cu", "Tu")},
                "ratio": m["Cu"] / m["Tu"], "target_ratio": t["Cu"] / t["Tu"],
-               "wall_time_s": m["wall_time_s"]}
+               "brazilian": b, "wall_time_s": m["wall_time_s"] + b["wall_time_s"]}
     (o / "summary.json").write_text(json.dumps(summary, indent=2))
     con.print(f"E {m['E']:.4g} Pa ({m['E'] / t['E'] - 1:+.1%}), nu {m['nu']:.3f} "
               f"({m['nu'] - t['nu']:+.3f}), Cu {m['Cu']:.4g} Pa ({m['Cu'] / t['Cu'] - 1:+.1%}), "
               f"Tu {m['Tu']:.4g} Pa ({m['Tu'] / t['Tu'] - 1:+.1%}), Cu / Tu {summary['ratio']:.3g} "
-              f"(lab {summary['target_ratio']:.3g}); {m['wall_time_s']:.0f} s", highlight=False)
+              f"(lab {summary['target_ratio']:.3g}); Brazilian {b['tensile_strength']:.4g} Pa "
+              f"({b['tensile_strength'] / t['Tu'] - 1:+.1%}); {summary['wall_time_s']:.0f} s",
+              highlight=False)
 
 
 def _float_list(value: Optional[str], name: str, integer=False):

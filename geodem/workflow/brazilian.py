@@ -439,9 +439,11 @@ class Brazilian(StepBase):
     max_strain: float = F(0.02, gt=0, le=0.5,
                           description="Stop when the platen displacement reaches this "
                                       "fraction of D")
-    drop: float = F(0.5, gt=0, lt=1, description="Stop when the load falls below drop x peak "
+    drop: float = F(0.8, gt=0, lt=1, description="Stop when the load falls below drop x peak "
                                                  "after the peak and a crack lies within R/2 "
-                                                 "of the centre (the disc has split)")
+                                                 "of the centre (the disc has split: its "
+                                                 "halves, held by the platens, carry load "
+                                                 "again, which is not the disc's strength)")
     samples: int = F(400, ge=20, le=100000, description="Samples over max_strain")
     crack_k: int = F(10, ge=1, le=10000,
                      description="How many of the first cracks crack_start_offset averages")

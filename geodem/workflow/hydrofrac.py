@@ -37,7 +37,7 @@
     1957; non-penetrating fluid, elastic plate, tension positive T), with ``T`` =
     ``tensile_strength`` if given, else the material's measured tensile strength from its
     library calibration record (``materials/NAME.yaml``, ``calibrated.2d.measured.Tu``: the
-    Brazilian strength of the calibration discs), else its laboratory ``Tu``; with
+    direct-tension strength of the calibration specimen), else its laboratory ``Tu``; with
     ``tensile_strength_from: direct_tension``, the direct tension strength of a strip of the
     plate's own packing (:func:`strip_tensile_strength`); ``tensile_strength_source`` says
     which. ``fluid_penetration_at_breakdown`` [m] (:func:`penetration_depth`) tells whether
@@ -343,7 +343,7 @@ class HydrofracPlate(ModelBase):
 
 def material_tensile_strength(cfg, name: str, dim: int = 2):
     """``(T [Pa], source)`` of material ``name``: the measured Tu of a library material's
-    calibration record for ``dim`` (the Brazilian strength of the calibration), else its
+    calibration record for ``dim`` (the calibration's direct-tension strength), else its
     laboratory Tu, else the rock properties' Tu; ``(None, reason)`` when none is known."""
     from geodem.workflow.schema import LibraryMaterial, MacroMaterial
 
@@ -647,8 +647,9 @@ class HydraulicFracturing(StepBase):
                                            "tensile_strength_from)")
     tensile_strength_from: Literal["calibration", "direct_tension"] = F(
         "calibration", description="Where T comes from when tensile_strength is not given: "
-                                   "calibration (the material's calibration record: the nominal "
-                                   "Brazilian strength) or direct_tension (a direct tension "
+                                   "calibration (the material's calibration record: the "
+                                   "direct-tension strength of the calibration specimen) or "
+                                   "direct_tension (a direct tension "
                                    "test of a 10 x 20 d_mean strip of the plate's packing: same "
                                    "material, d_mean, distri_rate and seed, run in "
                                    "tensile_test/)")
