@@ -490,8 +490,8 @@ def penetration_depth(r, P, p_inj, r_wall, width, frac=0.1):
 
 def strip_tensile_strength(ctx):
     """``(T [Pa], source)``: the direct tension strength of a strip of the plate's packing,
-    ``10 x 20 d_mean`` (the geometry of workflows/direct_tension.yaml), built like the plate
-    (same material, d_mean, distri_rate and seed) and pulled by the ``direct_tension`` step
+    ``10 x 20 d_mean``, built like the plate (same material, d_mean, distri_rate and seed)
+    and pulled by the ``direct_tension`` step
     (strain rate 0.05 1/s, to 0.5 x the peak force); the run lies in ``tensile_test/`` of the
     run folder and is reused when its summary is there (a resumed run)."""
     import json

@@ -196,7 +196,7 @@ def test_brazilian_workflow(brazilian_run):
     assert np.allclose(a[:, cols.index("nominal_stress")], 2 * P / (math.pi * D * t),
                        rtol=1e-12)
     # loaded to failure: the load fell after the peak, with the disc split through its centre
-    assert r["stopped_by"] == "drop" and P[-1] < 0.5 * P.max()
+    assert r["stopped_by"] == "drop" and P[-1] < 0.8 * P.max()
     assert r["displacement_at_peak"] > 0
     assert s["cracks_tensile"] > s["cracks_shear"] > 0
     # the split follows the loaded diameter: measured 0.6-0.95 of the cracks within D/8 of it
@@ -228,7 +228,7 @@ def test_direct_tension_and_brazilian_same_order(brazilian_run, tmp_path):
     cols, a = _curve(tmp_path / "dt" / "direct_tension_curve.csv")
     assert s["tensile_strength"] == a[:, cols.index("stress")].max() > 0
     assert s["tensile_strength"] == pytest.approx(r["peak_force"] / r["area"], rel=1e-12)
-    assert r["area"] == pytest.approx(0.05 * 0.005, rel=0.1)  # width x d_mean (2-D)
+    assert r["area"] == pytest.approx(0.1 * 0.005, rel=0.1)  # width x d_mean (2-D)
     assert 0 < s["peak_strain"] < r["final_strain"]
     assert s["cracks_tensile"] > 0 and s["cracks_shear"] <= s["cracks_tensile"]
     assert r["E"] > 0
