@@ -1,7 +1,8 @@
 """The packing recipe is part of the rock: the same element parameters (the library sandstone's
-2-D calibration, made on the isotropic packing) reach the lab's Cu / Tu of 18.8 on the
-isotropic packing and stop near 8 on the deposited one (docs/calibration.md, "Reaching real
-rocks"). `geodem rock` measures it. Integration tier: about 40 s on 2 cores."""
+2-D calibration, made on the isotropic packing) give the lab's rock on the isotropic packing,
+with the Brazilian disc agreeing with direct tension, and another rock on the deposited one
+(docs/calibration.md, "Reaching real rocks"). `geodem rock` measures it. Integration tier:
+about a minute on 2 cores."""
 import json
 
 from typer.testing import CliRunner
@@ -17,15 +18,18 @@ def _rock(tmp_path, name, *extra):
     return json.loads((out / "summary.json").read_text())
 
 
-def test_the_isotropic_packing_reaches_the_sandstone_strength_ratio_the_deposit_does_not(
+def test_the_isotropic_packing_makes_the_calibrated_sandstone_the_deposit_another_rock(
         tmp_path):
     iso = _rock(tmp_path, "isotropic")
     dep = _rock(tmp_path, "deposit", "--packing", "deposit")
     assert iso["structure"]["packing"] == "isotropic" and dep["structure"]["packing"] == "deposit"
+    # measured (2-D): isotropic Cu / Tu 19.3 (lab 18.8), Brazilian 4.11 MPa against direct
+    # tension 3.90; deposit E -20 %, Cu -23 %, Tu -19 %, Brazilian 6.97 MPa (2.1 x its Tu)
     assert abs(iso["ratio"] / iso["target_ratio"] - 1) < 0.12, iso
-    assert dep["ratio"] < 0.6 * iso["ratio"], (dep["ratio"], iso["ratio"])
-    # the stiffness hardly depends on the recipe: the strengths do
-    assert abs(dep["measured"]["E"] / iso["measured"]["E"] - 1) < 0.3
+    assert abs(iso["brazilian"]["tensile_strength"] / iso["measured"]["Tu"] - 1) < 0.15, iso
+    for k in ("E", "Cu", "Tu"):
+        assert dep["measured"][k] < 0.9 * iso["measured"][k], (k, dep, iso)
+    assert dep["brazilian"]["tensile_strength"] > 1.5 * dep["measured"]["Tu"], dep
 
 
 def test_a_bond_range_on_the_deposited_packing_is_refused(tmp_path):
