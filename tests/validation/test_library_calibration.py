@@ -1,8 +1,8 @@
 """The long calibrations (slow): `geodem calibrate` of library rocks on real specimens meets E,
 Cu, Tu within 5 % and nu within 0.03 in at most 8 iterations, and the stored calibration is
 what it finds again. The cheap slice in CI is tests/unit/test_calibrate.py (synthetic packings).
-Measured 2026-12-02 (docs/calibration.md): granite 2-D converged at iteration 4 in 67 s,
-marble 3-D at iteration 5 in 233 s, one core each."""
+Measured 2026-12-02 (docs/calibration.md, Tu from direct tension): granite 2-D converged at
+iteration 2 in 42 s, marble 3-D at iteration 4 in 235 s, one core each."""
 import json
 
 import pytest
