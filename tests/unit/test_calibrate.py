@@ -94,6 +94,18 @@ def test_save_calibration_keeps_the_file_and_loads_back(tmp_path):
     assert mat.calibrated["2d"]["element"]["kn_per_d"] == pytest.approx(out["element"]["kn_per_d"])
 
 
+def test_the_brazilian_check_and_the_tensile_test_are_stored_with_the_calibration(tmp_path):
+    out = C.calibrate(spec(), tmp_path, measure_fn=synthetic)
+    assert out["brazilian"] is None  # a synthetic packing has no disc to check
+    assert out["specimen"]["tensile_test"] == "direct_tension"
+    check = {"tensile_strength": 4.4e6, "over_target": 1.1, "crack_start_offset": 0.83,
+             "stopped_by": "drop", "wall_time_s": 5.0}
+    block = C.calibration_block(dict(out, brazilian=check))["2d"]
+    assert block["brazilian"] == {"tensile_strength": 4.4e6, "over_target": 1.1,
+                                  "crack_start_offset": 0.83}
+    assert "brazilian" not in C.calibration_block(out)["2d"]
+
+
 def test_noisy_measurements_do_not_derail_the_calibration(tmp_path):
     # the synthetic packing with +-0.004 of deterministic noise on nu and +-2 % on strengths
     def noisy(spec_, el, folder):
