@@ -124,9 +124,11 @@ def test_boundary_tractions_carry_the_far_field_stress(angle):
 
 
 # ------------------------------------------------------------------ a small plate end to end
-# the small plate keeps the fast ramp that was the default before commit 65a0cde (2e9 Pa/s): a few seconds in CI
-SMALL = ["model.size=0.1", "model.hole_radius=0.0075", "steps.injection.duration=0.003",
-         "steps.injection.pressure_rate=2.0e9"]
+# the small plate keeps the fast ramp that was the default before commit 65a0cde (2e9 Pa/s), to
+# 20 MPa: a few seconds in CI. Its cracks grow stably between its close fixed edges (first crack
+# 7.5 MPa, 15 cracks at the stop radius by 11.2 MPa), so a burst is 5 bonds within 1 MPa here
+SMALL = ["model.size=0.1", "model.hole_radius=0.0075", "steps.injection.duration=0.01",
+         "steps.injection.pressure_rate=2.0e9", "steps.injection.burst_window=1.0e6"]
 
 
 @pytest.fixture(scope="module")
@@ -147,7 +149,7 @@ def test_small_plate_fractures_with_closed_books(small):
     assert s["fluid_mass_balance_rel_error"] < 1e-6
     assert s["energy_closure_rel_error"] < 1e-2
     assert s["sigma_H_angle_deg"] is None  # isotropic: no sigma_H
-    # T from the calibration record of materials/sandstone.yaml (Brazilian, 2-D)
+    # T from the calibration record of materials/sandstone.yaml (direct tension, 2-D)
     from geodem.materials_library import load_material
 
     tu = load_material("sandstone").calibrated["2d"]["measured"]["Tu"]
@@ -156,7 +158,7 @@ def test_small_plate_fractures_with_closed_books(small):
     assert s["hubbert_willis_pressure"] == s["tensile_strength"]  # sigma = 0, p0 = 0
     # the burst: a pressure the ramp reached, after the first crack
     assert 0 < r["first_crack_pressure"] <= s["breakdown_pressure"] <= r["final_injection_pressure"]
-    assert 2 <= s["crack_branches"] <= 4  # measured: 3 arms (107, 229, 355 deg)
+    assert 2 <= s["crack_branches"] <= 4  # measured: 2 arms (21, 232 deg)
     assert len(s["crack_angles_deg"]) == s["crack_branches"]
     assert r["injected_mass"] > 0 and s["cracks_tensile"] > 10
     for name in ("hf_pressure.png", "hf_history.png", "hf_animation.gif", "hydrofrac_curve.csv"):

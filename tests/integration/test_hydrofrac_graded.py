@@ -136,7 +136,7 @@ def test_stress_free_graded_plate_bonds_start_unstrained(tiny):
 
 
 def test_graded_plate_injection_closes_the_fluid_books(tmp_path):
-    s = _cli(tmp_path / "g", *TINY, "steps.injection.duration=0.002", "steps.injection.gif=false",
+    s = _cli(tmp_path / "g", *TINY, "steps.injection.duration=0.004", "steps.injection.gif=false",
              "steps.injection.plot=false", RAMP_2E9[0])
     r = s["results"]["injection"]
     assert s["status"] == "ok"
