@@ -357,9 +357,11 @@ def material_tensile_strength(cfg, name: str, dim: int = 2):
             return None, f"library material {m.library!r} not readable: {exc}"
         cal = (lib.calibrated or {}).get(f"{dim}d")
         if m.use != "lattice" and cal and "Tu" in (cal.get("measured") or {}):
+            sp = cal.get("specimen", {})
+            test = sp.get("tensile_test", "brazilian").replace("_", " ")
             return float(cal["measured"]["Tu"]), (
-                f"materials/{lib.name}.yaml calibrated.{dim}d.measured.Tu (Brazilian test of "
-                f"the calibration, d_mean = {cal.get('specimen', {}).get('d_mean')} m)")
+                f"materials/{lib.name}.yaml calibrated.{dim}d.measured.Tu ({test} test of "
+                f"the calibration, d_mean = {sp.get('d_mean')} m)")
         return float(lib.values()["Tu"]), f"materials/{lib.name}.yaml laboratory Tu"
     if isinstance(m, MacroMaterial):
         return float(m.Tu), f"material {name!r} Tu"
