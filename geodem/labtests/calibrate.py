@@ -380,10 +380,11 @@ def _score(measured, targets, tol, reachable):
 def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None = None,
               measure_fn=None) -> dict:
     """Calibrate (see module docstring); writes ``summary.json``, ``calibrated.yaml``
-    (the material block), ``history.csv``, ``convergence.png`` and ``iterations/NN/`` into
-    ``out_dir``. ``progress(i, record)`` is called after each iteration; ``measure_fn(spec,
-    element, folder)`` replaces :func:`measure` (tests use a synthetic response). Returns the
-    summary."""
+    (the material block), ``history.csv``, ``convergence.png``, ``iterations/NN/`` and
+    ``brazilian/`` (the check of the result) into ``out_dir``. ``progress(i, record)`` is
+    called after each iteration, and ``progress("brazilian", check)`` after the check;
+    ``measure_fn(spec, element, folder)`` replaces :func:`measure` (tests use a synthetic
+    response, and then the Brazilian check is skipped). Returns the summary."""
     measure_fn = measure if measure_fn is None else measure_fn
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
