@@ -621,13 +621,6 @@ def calibrate_cmd(
               highlight=False)
 
     def report(i, rec):
-        if i == "brazilian":
-            off = rec["crack_start_offset"]
-            con.print(f"check: Brazilian disc {rec['tensile_strength']:.4g} Pa = "
-                      f"{rec['over_target']:.3g} x Tu (first cracks at "
-                      f"{off if off is not None else math.nan:.2f} R from the centre); "
-                      f"{rec['wall_time_s']:.0f} s", highlight=False)
-            return
         m, e = rec["measured"], rec["rel_errors"]
         con.print(f"iteration {i}: E {m['E']:.4g} Pa ({e['E']:+.1%}), nu {m['nu']:.3f} "
                   f"({rec['nu_abs_error']:+.3f}), Cu {m['Cu']:.4g} Pa ({e['Cu']:+.1%}), "
@@ -635,6 +628,11 @@ def calibrate_cmd(
                   highlight=False)
 
     summary = calibrate(spec, o, progress=report)
+    b = summary["brazilian"]
+    off = b["crack_start_offset"]
+    con.print(f"check: Brazilian disc {b['tensile_strength']:.4g} Pa = {b['over_target']:.3g} x "
+              f"Tu (first cracks at {off if off is not None else math.nan:.2f} R from the "
+              f"centre); {b['wall_time_s']:.0f} s", highlight=False)
     con.print(f"best iteration {summary['best_iteration']} of {summary['iterations']}; "
               f"{'converged' if summary['converged'] else 'NOT converged'}; wall time "
               f"{summary['wall_time_s']:.0f} s", highlight=False)

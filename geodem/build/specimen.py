@@ -32,9 +32,10 @@
       displacement), cut the shape (centres inside; specimen bounding box starting at the
       origin), cement, Morton-sort (:func:`spatial_sort`).
 
-    The recipe is part of the rock: the library sandstone's 2-D element parameters give Cu / Tu
-    17.7 on ``isotropic`` (as calibrated) and 9.7 on ``deposit`` (docs/calibration.md, "Reaching
-    real rocks").
+    The recipe is part of the rock: the library sandstone's 2-D element parameters make the lab's
+    rock on ``isotropic`` (as calibrated; Brazilian 1.05 x direct tension) and one 20 % softer
+    and weaker on ``deposit``, whose disc is 2.1 x its direct tension (docs/calibration.md,
+    "Reaching real rocks").
     Every element is in group ``"specimen"``; platens are for the caller.
 """
 from __future__ import annotations

@@ -381,10 +381,10 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
               measure_fn=None) -> dict:
     """Calibrate (see module docstring); writes ``summary.json``, ``calibrated.yaml``
     (the material block), ``history.csv``, ``convergence.png``, ``iterations/NN/`` and
-    ``brazilian/`` (the check of the result) into ``out_dir``. ``progress(i, record)`` is
-    called after each iteration, and ``progress("brazilian", check)`` after the check;
-    ``measure_fn(spec, element, folder)`` replaces :func:`measure` (tests use a synthetic
-    response, and then the Brazilian check is skipped). Returns the summary."""
+    ``brazilian/`` (the check of the result, summary key ``brazilian``) into ``out_dir``.
+    ``progress(i, record)`` is called after each iteration; ``measure_fn(spec, element,
+    folder)`` replaces :func:`measure` (tests use a synthetic response, and then the Brazilian
+    check is skipped). Returns the summary."""
     measure_fn = measure if measure_fn is None else measure_fn
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -457,8 +457,6 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
     brazilian = None
     if measure_fn is measure:  # the synthetic responses of the tests have no disc
         brazilian = brazilian_check(spec, best["element"], out / "brazilian")
-        if progress:
-            progress("brazilian", brazilian)
     wall = time.perf_counter() - t0
     summary = {
         "material": spec.name, "dim": spec.dim,
