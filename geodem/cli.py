@@ -588,11 +588,16 @@ def calibrate_cmd(
     bond_weibull: BondWeibullOpt = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
+    force: Annotated[bool, typer.Option("--force", help="Calibrate even when the targets lie "
+                                                        "outside the charted reachable "
+                                                        "region (then E, nu and --prefer "
+                                                        "are matched).")] = False,
     backend: Annotated[Optional[str], typer.Option(
         "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
 ):
 
-    from geodem.labtests.calibrate import CalibrationSpec, calibrate, save_calibration
+    from geodem.labtests.calibrate import (CalibrationSpec, UnreachableTarget, calibrate,
+                                           check_reachable, save_calibration)
     from geodem.materials_library import load_material, material_path
 
     if prefer not in ("Cu", "Tu"):
@@ -613,9 +618,15 @@ def calibrate_cmd(
     try:
         spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim, d_mean=d_mean,
                                ucs_size=size, seed=seed, iterations=iterations,
-                               backend=backend, prefer=prefer, structure=structure)
+                               backend=backend, prefer=prefer, structure=structure,
+                               check_reach=not force)
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull: {exc}", USER_ERROR)
+    if not force:
+        try:
+            check_reachable(spec)
+        except UnreachableTarget as exc:
+            _fail(f"{path}: {exc}", USER_ERROR)
     con = _out()
     con.print(f"calibrating {mat.name} ({dim}-D specimens, d = {d_mean:g} m) -> {out}",
               highlight=False)
@@ -739,12 +750,19 @@ def _float_list(value: Optional[str], name: str, integer=False):
     "KIND 'speed-accuracy': error against wall time of the "
     "cases with a reference (--cases; --quick: a tiny grid); docs/speed_accuracy.md.\n\n"
     "KIND 'graded': the landslide uniform and graded (model.coarsen factor 1, 2, 3) over "
-    "three packing seeds; writes graded_study.json and graded_study.md; docs/graded.md."))
+    "three packing seeds; writes graded_study.json and graded_study.md; docs/graded.md.\n\n"
+    "KIND 'reach': the (Cu / Tu, nu) a calibration can reach on the --dim packing: UCS and "
+    "direct tension over a grid of ks / kn (--s) and bond shear / tensile strength (--rho); "
+    "writes reach.json and reach.png; --save stores it as the chart geodem calibrate refuses "
+    "targets by (docs/calibration.md, 'Reachable region').\n\n"
+    "KIND 'friction': the triaxial workflow's friction angle with the library --material's "
+    "2-D element parameters, one micro-parameter changed at a time (friction, bond range, "
+    "strength scatter); writes friction.json and friction.md; docs/triaxial.md."))
 @_guard
 def study_cmd(
     kind: Annotated[str, typer.Argument(metavar="KIND", help="ucs, stability, "
-                                                             "speed-accuracy, freeze or "
-                                                             "graded")],
+                                                             "speed-accuracy, freeze, graded, "
+                                                             "reach or friction")],
     out: Annotated[str, typer.Option("-o", "--out", help="Output directory.")],
     workflow: Annotated[str, typer.Option("--workflow", help="UCS workflow file.")] =
     "workflows/ucs.yaml",
@@ -753,8 +771,10 @@ def study_cmd(
     fractions: Annotated[str, typer.Option("--dt-fractions", help="Time-step fractions, "
                                                                   "comma-separated.")] =
     "0.02,0.05,0.1",
-    material: Annotated[str, typer.Option("--material", help="Material name in the "
-                                                             "workflow.")] = "rock",
+    material: Annotated[str, typer.Option("--material", help="ucs: material name in the "
+                                                             "workflow; friction: library "
+                                                             "material (default sandstone)."
+                                          )] = "rock",
     tolerance: Annotated[float, typer.Option("--tolerance", min=1e-6, max=1.0,
                                              help="Error bound for 'fastest within'.")] = 0.05,
     backend: Annotated[Optional[str], typer.Option(
@@ -762,8 +782,28 @@ def study_cmd(
     cases: Annotated[Optional[str], typer.Option("--cases", help="speed-accuracy: cases, "
                                                  "comma-separated, or all.")] = None,
     quick: Annotated[bool, typer.Option("--quick", help="speed-accuracy: tiny grid.")] = False,
+    dim: Annotated[int, typer.Option("--dim", min=2, max=3, help="reach: dimension.")] = 2,
+    s_values: Annotated[Optional[str], typer.Option(
+        "--s", help="reach: ks / kn values, comma-separated.")] = None,
+    rho_values: Annotated[Optional[str], typer.Option(
+        "--rho", help="reach: bond shear / tensile strength ratios, comma-separated.")] = None,
+    save: Annotated[bool, typer.Option("--save", help="reach: store the chart in the "
+                                                      "package.")] = False,
 ):
     from geodem.labtests.study import ucs_study
+
+    if kind == "reach":
+        _reach(out, dim, s_values, rho_values, save, backend)
+        return
+    if kind == "friction":
+        from geodem.labtests.friction import describe, friction_study
+
+        con = _out()
+        lib = "sandstone" if material == "rock" else material
+        friction_study(_fresh_out_dir(out, overwrite=False), lib, backend=backend,
+                       progress=lambda r: con.print(escape(describe(r)), highlight=False))
+        con.print(f"wrote friction.json, friction.md to {out}", highlight=False)
+        return
 
     if kind == "speed-accuracy":
         from geodem.labtests.speed_accuracy import run_cli
@@ -799,7 +839,8 @@ def study_cmd(
                   highlight=False)
         return
     if kind != "ucs":
-        _fail(f"study KIND {kind!r}: allowed: ucs, stability, speed-accuracy, freeze, graded",
+        _fail(f"study KIND {kind!r}: allowed: ucs, stability, speed-accuracy, freeze, graded, "
+              "reach, friction",
               USER_ERROR)
     n = _float_list(across, "--across", integer=True)
     f = _float_list(fractions, "--dt-fractions")
@@ -833,6 +874,41 @@ def study_cmd(
     con.print(f"wrote study.json, speed_accuracy.png to {out}", highlight=False)
     if not any("E_rel_error" in p for p in rec["points"]):
         _fail("no point of the study gave a result (see the errors above)", FAILURE)
+
+
+def _reach(out, dim, s_values, rho_values, save, backend):
+    import shutil
+    from pathlib import Path
+
+    from geodem.labtests import reach
+
+    s_v = _float_list(s_values, "--s") if s_values else reach.DEFAULT_S
+    r_v = _float_list(rho_values, "--rho") if rho_values else reach.DEFAULT_RHO
+    o = _fresh_out_dir(out, overwrite=(Path(out) / "reach.json").exists())
+    con = _out()
+    con.print(f"reachable region, {dim}-D: {len(s_v)} x {len(r_v)} points -> {out}",
+              highlight=False)
+
+    def report(p):
+        if "ratio" in p:
+            con.print(f"ks/kn {p['s']:g}, rho_s {p['rho_s']:g}: nu {p['nu']:.3f}, Cu / Tu "
+                      f"{p['ratio']:.3g} (E {p['E']:.3g} Pa); {p['wall_time_s']:.0f} s",
+                      highlight=False)
+        else:
+            con.print(f"ks/kn {p['s']:g}, rho_s {p['rho_s']:g}: {escape(p['error'])}",
+                      highlight=False)
+
+    rec = reach.reach_study(dim, o, s_v, r_v, backend=backend, progress=report)
+    b = rec["bounds"]
+    if not b:
+        _fail("no point of the study gave a result (see the errors above)", FAILURE)
+    con.print(f"Cu / Tu {b['ratio'][0]:.3g}-{b['ratio'][1]:.3g}, nu {b['nu'][0]:.3g}-"
+              f"{b['nu'][1]:.3g}; {rec['wall_time_s']:.0f} s; wrote reach.json, reach.png to "
+              f"{out}", highlight=False)
+    if save:
+        dest = Path(reach.__file__).with_name(f"reach_{dim}d.json")
+        shutil.copyfile(o / "reach.json", dest)
+        con.print(f"saved the chart as {dest}", highlight=False)
 
 
 @app.command("sweep", help=(

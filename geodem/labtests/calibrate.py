@@ -41,8 +41,10 @@ steps of ``s`` below the measurement noise gave a near-zero secant of nu(s), and
 changed ``s`` by 0.4 and E by -58 %. A later one solved nu in ``s`` alone and Cu / Tu in
 ``rho_s`` alone; nu depends on ``rho_s`` too, and four rocks did not converge.)
 
-Tolerances: E, Cu, Tu within 5 %, nu within 0.03 absolute. A target outside
-what the packing can reach (nu beyond the nu(s) range of the packing, Cu/Tu beyond the ratio
+Tolerances: E, Cu, Tu within 5 %, nu within 0.03 absolute. Targets outside the region charted
+for the packing (:mod:`geodem.labtests.reach`: the (Cu / Tu, nu) measured over a grid of the
+shape variables) are refused before the first iteration, with the measured bounds. A target
+found out of reach on the way (nu beyond the nu(s) range of the packing, Cu/Tu beyond the ratio
 the bond law allows) is reported as unreachable with the reason.
 """
 from __future__ import annotations
@@ -58,8 +60,9 @@ import yaml
 
 from geodem.materials import macro_to_micro, per_size
 
-__all__ = ["CalibrationSpec", "calibrate", "brazilian_check", "save_calibration",
-           "calibration_block", "to_unknowns", "from_unknowns", "TOLERANCES"]
+__all__ = ["CalibrationSpec", "UnreachableTarget", "calibrate", "check_reachable",
+           "brazilian_check", "save_calibration", "calibration_block", "to_unknowns",
+           "from_unknowns", "TOLERANCES"]
 
 TOLERANCES = {"E": 0.05, "nu": 0.03, "Cu": 0.05, "Tu": 0.05}  # nu absolute, others relative
 KEYS = ("E", "nu", "Tu", "Cu")
@@ -125,6 +128,9 @@ class CalibrationSpec:
     # micro-structure kept fixed while calibrating and stored with the element parameters
     # (geodem.materials.STRUCTURE_KEYS): packing recipe, bond range, bond-strength scatter
     structure: dict = field(default_factory=lambda: {"packing": "isotropic"})
+    # refuse, before the first iteration, targets outside the charted reachable region
+    # (geodem.labtests.reach); False runs them anyway and reports what is out of reach
+    check_reach: bool = True
 
     def __post_init__(self):
         if self.dim not in (2, 3):
@@ -143,6 +149,22 @@ class CalibrationSpec:
             raise ValueError(f"structure keys {unknown}: allowed {', '.join(STRUCTURE_KEYS)}")
         self.structure = {k: v for k, v in self.structure.items() if v is not None}
         packing_recipe(self.structure, self.dim)
+
+
+class UnreachableTarget(ValueError):
+    """The targets lie outside the charted reachable region (message: the measured bounds)."""
+
+
+def check_reachable(spec: CalibrationSpec) -> None:
+    """Raise :class:`UnreachableTarget` when ``spec.targets`` lie outside the region charted
+    for ``spec.dim`` and its micro-structure (:func:`geodem.labtests.reach.outside_region`)."""
+    from geodem.labtests.reach import outside_region
+
+    why = outside_region(spec.targets, spec.dim, spec.structure, spec.tolerances)
+    if why:
+        raise UnreachableTarget(f"{spec.name}: {why}. Try a bond-strength scatter or a bond "
+                                "range (docs/calibration.md), or calibrate anyway (--force) "
+                                "to match E, nu and the preferred strength")
 
 
 def prior_guess(spec: CalibrationSpec) -> dict:
@@ -384,7 +406,11 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
     ``brazilian/`` (the check of the result, summary key ``brazilian``) into ``out_dir``.
     ``progress(i, record)`` is called after each iteration; ``measure_fn(spec, element,
     folder)`` replaces :func:`measure` (tests use a synthetic response, and then the Brazilian
-    check is skipped). Returns the summary."""
+    check and the reachable-region check are skipped). Raises :class:`UnreachableTarget`
+    before the first run when the targets lie outside the charted region and
+    ``spec.check_reach`` is on. Returns the summary."""
+    if measure_fn is None and spec.check_reach:
+        check_reachable(spec)  # before any folder is written
     measure_fn = measure if measure_fn is None else measure_fn
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

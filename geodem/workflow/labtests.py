@@ -13,7 +13,10 @@
 
   - axial stress = mean of the top and bottom platen reactions / area; area = width^(dim-1),
     times a thickness in 2-D: ``thickness`` (default d_mean, the thickness the 2-D element
-    masses use);
+    masses use); width = the specimen's extent across the loading axis from surface to surface
+    (outermost element surfaces; the widths between the outermost centres are smaller by
+    about one diameter and made every stress 4 % (2-D, 20 across) to 19 % (3-D, 10 across)
+    too high);
   - axial strain = (h0 - h) / h0, h = distance between the mean loading-axis coordinates of the
     platens (h0 from the built positions);
   - lateral strain = -(w - w0) / w0 (negative when bulging, compression positive) with w the
@@ -300,7 +303,8 @@ class PlatenTest(StepBase):
         top, bot = groups.members(st, "top"), groups.members(st, "bottom")
         h0 = ref[top, ax].mean() - ref[bot, ax].mean()
         height = ref[:, ax].max() - ref[:, ax].min()
-        widths = ref.max(axis=0)[:ax] - ref.min(axis=0)[:ax]
+        r = st.r[:, None]
+        widths = (ref + r).max(axis=0)[:ax] - (ref - r).min(axis=0)[:ax]  # surface to surface
         area = float(np.prod(widths)) * ((self.thickness or d) if st.dim == 2 else 1.0)
         return st, ax, d, ref, top, bot, h0, height, area
 

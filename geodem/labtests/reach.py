@@ -1,0 +1,185 @@
+"""The reachable region of a packing: which (Cu / Tu, nu) a calibration can meet.
+
+The calibration's two exact scalings (module :mod:`geodem.labtests.calibrate`) leave nu and
+Cu / Tu functions of the shape variables only: ``s = ks / kn`` and ``rho_s = fs0 / (kn xb)``
+(per size), at a fixed micro-structure and friction ``mu``. So the region is a map of that
+plane: :func:`reach_study` measures nu and Cu / Tu (UCS and direct tension of the calibration
+specimen, as :func:`geodem.labtests.calibrate.measure`) on a grid of ``(s, rho_s)`` and writes
+``reach.json`` and ``reach.png``. The shipped charts (``geodem/labtests/reach_2d.json``,
+``reach_3d.json``, regenerated with ``geodem study reach --dim D -o DIR --save``) let
+``geodem calibrate`` refuse a target outside the region before the first iteration
+(:func:`outside_region`), with the measured bound.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["reach_study", "outside_region", "shipped_chart", "DEFAULT_S", "DEFAULT_RHO"]
+
+DEFAULT_S = (0.15, 0.25, 0.35, 0.45, 0.6, 0.8, 1.2)
+DEFAULT_RHO = (0.1, 0.3, 1.0, 3.0, 10.0, 50.0)
+#: a fitted nu at or above this (2-D, 3-D) is no elastic solid: the packing is a mechanism
+#: there (isotropic elasticity needs nu < 1 in 2-D and nu < 1/2 in 3-D)
+NU_LIMIT = {2: 1.0, 3: 0.5}
+#: the charted micro-structure: the calibration's default (isotropic packing, bond gap 0.01,
+#: no strength scatter); other structures are not refused up front
+CHARTED_STRUCTURE = {"packing": "isotropic"}
+
+
+def _base_element(dim: int) -> dict:
+    """Levels (kn, F_t, mu) of the library sandstone's calibration: the region does not depend
+    on them (exact scalings), only on the shape variables."""
+    from geodem.materials_library import load_material
+
+    return dict(load_material("sandstone").calibrated[f"{dim}d"]["element"])
+
+
+def reach_study(dim: int, out_dir, s_values=DEFAULT_S, rho_values=DEFAULT_RHO, backend=None,
+                progress=None) -> dict:
+    """Measure nu and Cu / Tu over the ``(s, rho_s)`` grid on the calibration specimen of
+    ``dim`` (isotropic packing, seed 0). A point whose specimen cannot be measured (a
+    mechanism near ``s = 0``: no E / nu fit, or a fitted nu beyond :data:`NU_LIMIT`) is kept
+    with its error and left out of the region. Returns the record
+    written to ``reach.json``."""
+    from geodem.labtests.calibrate import CalibrationSpec, measure
+    from geodem.materials_library import load_material
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    base = _base_element(dim)
+    targets = load_material("sandstone").values()
+    size = (0.1, 0.1, 0.2) if dim == 3 else (0.1, 0.2)
+    spec = CalibrationSpec(targets=targets, name="reach", dim=dim,
+                           d_mean=0.01 if dim == 3 else 0.005, ucs_size=size, iterations=1,
+                           backend=backend, structure=dict(CHARTED_STRUCTURE))
+    ft = base["kn_per_d"] * base["xb_per_d"]
+    points = []
+    t0 = time.perf_counter()
+    for s in s_values:
+        for rho in rho_values:
+            el = dict(base, ks_per_d=float(s) * base["kn_per_d"], fs0_per_d2=float(rho) * ft,
+                      **CHARTED_STRUCTURE)
+            p = {"s": float(s), "rho_s": float(rho)}
+            try:
+                m = measure(spec, el, out / f"s{s:g}_rho{rho:g}")
+            except RuntimeError as exc:
+                p["error"] = str(exc).splitlines()[0][:300]
+            else:
+                if m["nu"] >= NU_LIMIT[dim]:
+                    p["error"] = (f"mechanism: fitted nu {m['nu']:.3g} >= {NU_LIMIT[dim]:g} "
+                                  f"(E {m['E']:.3g} Pa)")
+                else:
+                    p.update(nu=m["nu"], E=m["E"], Cu=m["Cu"], Tu=m["Tu"],
+                             ratio=m["Cu"] / m["Tu"], wall_time_s=m["wall_time_s"])
+            points.append(p)
+            if progress:
+                progress(p)
+    ok = [p for p in points if "ratio" in p]
+    rec = {"dim": dim, "structure": dict(CHARTED_STRUCTURE), "mu": base["mu"],
+           "specimen": {"ucs_size": list(size), "d_mean": spec.d_mean, "seed": spec.seed},
+           "points": points, "wall_time_s": time.perf_counter() - t0,
+           "bounds": _bounds(ok)}
+    (out / "reach.json").write_text(json.dumps(rec, indent=2))
+    try:
+        _plot(out / "reach.png", rec)
+        rec["plot"] = "reach.png"
+    except ImportError:
+        pass
+    return rec
+
+
+def _bounds(points) -> dict:
+    if not points:
+        return {}
+    r = [p["ratio"] for p in points]
+    n = [p["nu"] for p in points]
+    return {"ratio": [min(r), max(r)], "nu": [min(n), max(n)]}
+
+
+def shipped_chart(dim: int) -> dict | None:
+    """The committed chart for ``dim`` (None if absent)."""
+    path = Path(__file__).with_name(f"reach_{dim}d.json")
+    if not path.exists():
+        return None
+    return json.loads(path.read_text())
+
+
+def _hull_points(chart: dict, tol_nu: float, tol_ratio: float) -> np.ndarray:
+    """Measured points in ``(ln ratio, nu)``, each widened by the tolerances (a box around
+    every point), so that a target the calibration could still meet within tolerance is in."""
+    pts = []
+    for p in chart["points"]:
+        if "ratio" not in p:
+            continue
+        x, y = math.log(p["ratio"]), p["nu"]
+        for dx in (-tol_ratio, tol_ratio):
+            for dy in (-tol_nu, tol_nu):
+                pts.append((x + dx, y + dy))
+    return np.array(pts)
+
+
+def outside_region(targets: dict, dim: int, structure: dict, tolerances: dict,
+                   chart: dict | None = None) -> str | None:
+    """Why ``targets`` (``nu``, ``Cu``, ``Tu``) lie outside the charted region of ``dim``, with
+    the measured bounds; None when inside, or when no chart applies (another micro-structure,
+    no chart shipped). Inside means: within the convex hull of the measured ``(ln Cu/Tu,
+    nu)`` points widened by the tolerances."""
+    from scipy.spatial import Delaunay
+
+    chart = shipped_chart(dim) if chart is None else chart
+    if chart is None or {k: v for k, v in structure.items() if v is not None} != \
+            chart["structure"]:
+        return None
+    tol_r = math.log1p(tolerances["Cu"] + tolerances["Tu"])
+    hull = _hull_points(chart, tolerances["nu"], tol_r)
+    if len(hull) < 4:
+        return None
+    ratio = float(targets["Cu"]) / float(targets["Tu"])
+    q = np.array([[math.log(ratio), float(targets["nu"])]])
+    if Delaunay(hull).find_simplex(q)[0] >= 0:
+        return None
+    b = chart["bounds"]
+    near = [p for p in chart["points"] if "ratio" in p]
+    at_nu = [p["ratio"] for p in near if abs(p["nu"] - float(targets["nu"])) <= 0.05]
+    span = (f"; at nu {float(targets['nu']):.2f} +- 0.05 it spans Cu / Tu "
+            f"{min(at_nu):.3g}-{max(at_nu):.3g}" if at_nu else "")
+    return (f"Cu / Tu = {ratio:.3g} with nu = {float(targets['nu']):.3g} is outside what the "
+            f"{dim}-D {chart['structure']['packing']} packing reaches: measured Cu / Tu "
+            f"{b['ratio'][0]:.3g}-{b['ratio'][1]:.3g}, nu {b['nu'][0]:.3g}-{b['nu'][1]:.3g}"
+            f"{span} (geodem study reach; docs/calibration.md, 'Reachable region')")
+
+
+def _plot(path, rec):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = [p for p in rec["points"] if "ratio" in p]
+    fig, ax = plt.subplots(figsize=(6.5, 4.6))
+    rhos = sorted({p["rho_s"] for p in ok})
+    for s in sorted({p["s"] for p in ok}):
+        sel = sorted((p for p in ok if p["s"] == s), key=lambda p: p["rho_s"])
+        ax.plot([p["ratio"] for p in sel], [p["nu"] for p in sel], "o-", ms=4,
+                label=f"ks/kn = {s:g}")
+    for rho in rhos:
+        sel = sorted((p for p in ok if p["rho_s"] == rho), key=lambda p: p["s"])
+        ax.plot([p["ratio"] for p in sel], [p["nu"] for p in sel], ":", color="0.6", lw=0.8)
+        if sel:
+            ax.annotate(f"rho_s {rho:g}", (sel[-1]["ratio"], sel[-1]["nu"]), fontsize=7,
+                        textcoords="offset points", xytext=(3, -9), color="0.4")
+    ax.add_patch(plt.Rectangle((5, 0.05), 25, 0.30, fill=False, ls="--", color="k", lw=0.8))
+    ax.text(5.2, 0.355, "goal: Cu/Tu 5-30, nu 0.05-0.35", fontsize=8)
+    ax.set_xscale("log")
+    ax.set_xlabel("Cu / Tu (UCS / direct tension)")
+    ax.set_ylabel("nu")
+    ax.set_title(f"reachable region, {rec['dim']}-D isotropic packing (mu {rec['mu']:.2f})")
+    ax.legend(fontsize="x-small", loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

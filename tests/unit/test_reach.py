@@ -1,0 +1,72 @@
+"""The reachable region: targets outside the charted (Cu / Tu, nu) points are refused before
+the first iteration, with the measured bounds; inside, or on another micro-structure, not."""
+import math
+
+import pytest
+
+from geodem.labtests.calibrate import (TOLERANCES, CalibrationSpec, UnreachableTarget,
+                                       calibrate)
+from geodem.labtests.reach import outside_region, shipped_chart
+
+# a hand-made chart: Cu / Tu 8-20 at nu 0.1-0.3 (a square in (ln ratio, nu))
+CHART = {"dim": 2, "structure": {"packing": "isotropic"},
+         "bounds": {"ratio": [8.0, 20.0], "nu": [0.1, 0.3]},
+         "points": [{"ratio": r, "nu": n} for r in (8.0, 20.0) for n in (0.1, 0.3)]
+         + [{"s": 0.0, "rho_s": 1.0, "error": "no E / nu fit"}]}
+ROCK = {"E": 1.5e10, "nu": 0.2, "Tu": 4e6, "Cu": 6e7, "mu_i": 0.7, "rho": 2300.0}
+
+
+def _why(nu, ratio, structure=None):
+    t = dict(ROCK, nu=nu, Cu=ratio * ROCK["Tu"])
+    return outside_region(t, 2, structure or {"packing": "isotropic"}, TOLERANCES, CHART)
+
+
+def test_a_target_inside_the_chart_is_accepted():
+    assert _why(0.2, 15.0) is None
+
+
+@pytest.mark.parametrize("nu, ratio", [(0.2, 8.0 * 0.95), (0.2, 20 * 1.05), (0.1 - 0.029, 12.0),
+                                       (0.3 + 0.029, 12.0)])
+def test_a_target_within_tolerance_of_the_edge_is_accepted(nu, ratio):
+    assert _why(nu, ratio) is None
+
+
+@pytest.mark.parametrize("nu, ratio", [(0.2, 30.0), (0.2, 5.0), (0.4, 12.0), (0.0, 12.0)])
+def test_a_target_outside_is_refused_with_the_measured_bounds(nu, ratio):
+    why = _why(nu, ratio)
+    assert why is not None
+    assert "measured Cu / Tu 8-20, nu 0.1-0.3" in why
+
+
+def test_another_micro_structure_is_not_judged_by_the_chart():
+    assert _why(0.2, 30.0, {"packing": "isotropic", "bond_strength_weibull": 3.0}) is None
+
+
+def test_calibrate_refuses_before_writing_anything(tmp_path, monkeypatch):
+    import geodem.labtests.reach as reach
+
+    monkeypatch.setattr(reach, "shipped_chart", lambda dim: CHART)
+    spec = CalibrationSpec(targets=dict(ROCK, Cu=30 * ROCK["Tu"]), name="odd")
+    with pytest.raises(UnreachableTarget, match="Cu / Tu = 30 with nu = 0.2 is outside"):
+        calibrate(spec, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_shipped_charts_hold_every_library_rock(dim):
+    from geodem.materials_library import list_materials, load_material
+
+    chart = shipped_chart(dim)
+    assert chart is not None and chart["dim"] == dim
+    for name in list_materials():
+        t = load_material(name).values()
+        assert outside_region(t, dim, {"packing": "isotropic"}, TOLERANCES, chart) is None, name
+
+
+def test_two_point_friction_angle_by_hand():
+    from geodem.labtests.friction import two_point_angle
+
+    # K = (1 + sin 35) / (1 - sin 35) = 3.690: sigma1 rises by 36.90 MPa over 10 MPa
+    k = (1 + math.sin(math.radians(35))) / (1 - math.sin(math.radians(35)))
+    assert two_point_angle(75e6, 75e6 + k * 10e6, 10e6) == pytest.approx(35.0, abs=1e-9)
+    assert two_point_angle(75e6, 80e6, 10e6) == 0.0  # K < 1: no frictional strengthening
