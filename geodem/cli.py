@@ -877,7 +877,6 @@ def study_cmd(
 
 
 def _reach(out, dim, s_values, rho_values, save, backend):
-    import shutil
     from pathlib import Path
 
     from geodem.labtests import reach
@@ -906,8 +905,7 @@ def _reach(out, dim, s_values, rho_values, save, backend):
               f"{b['nu'][1]:.3g}; {rec['wall_time_s']:.0f} s; wrote reach.json, reach.png to "
               f"{out}", highlight=False)
     if save:
-        dest = Path(reach.__file__).with_name(f"reach_{dim}d.json")
-        shutil.copyfile(o / "reach.json", dest)
+        dest = reach.save_chart(rec)
         con.print(f"saved the chart as {dest}", highlight=False)
 
 

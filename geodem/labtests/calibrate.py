@@ -193,8 +193,10 @@ MIN_SECANT_STEP = 0.05
 #: of ~1 % in the strengths leaves a target at the edge of the reachable region unmet)
 STALL = 3
 #: d ln(Cu/Tu) / d ln rho_s below which the strength ratio counts as saturated: failure is by
-#: tensile bond breakage and more shear strength no longer raises Cu (measured on granite:
-#: Cu/Tu = 8.4, 7.4, 8.5 for rho_s over a factor 9)
+#: tensile bond breakage and more shear strength no longer raises Cu (seen on granite with Tu
+#: from the Brazilian disc: Cu/Tu = 8.4, 7.4, 8.5 for rho_s over a factor 9; with Tu from
+#: direct tension the 2-D ratio rises on to 88 at rho_s 50, docs/calibration.md "Reachable
+#: region")
 RATIO_SATURATION = 0.1
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["reach_study", "outside_region", "shipped_chart", "DEFAULT_S", "DEFAULT_RHO"]
+__all__ = ["reach_study", "outside_region", "shipped_chart", "save_chart", "DEFAULT_S", "DEFAULT_RHO"]
 
 DEFAULT_S = (0.15, 0.25, 0.35, 0.45, 0.6, 0.8, 1.2)
 DEFAULT_RHO = (0.1, 0.3, 1.0, 3.0, 10.0, 50.0)
@@ -99,6 +99,21 @@ def _bounds(points) -> dict:
     r = [p["ratio"] for p in points]
     n = [p["nu"] for p in points]
     return {"ratio": [min(r), max(r)], "nu": [min(n), max(n)]}
+
+
+#: what the shipped chart keeps of each point (nu and Cu / Tu do not depend on the levels)
+CHART_KEYS = ("s", "rho_s", "nu", "ratio", "error")
+
+
+def save_chart(rec: dict) -> Path:
+    """Store the study record ``rec`` as the shipped chart of its dimension (points trimmed to
+    :data:`CHART_KEYS`); returns the path."""
+    chart = {k: rec[k] for k in ("dim", "structure", "mu", "specimen", "bounds")}
+    chart["command"] = f"geodem study reach --dim {rec['dim']} -o DIR --save"
+    chart["points"] = [{k: p[k] for k in CHART_KEYS if k in p} for p in rec["points"]]
+    dest = Path(__file__).with_name(f"reach_{rec['dim']}d.json")
+    dest.write_text(json.dumps(chart, indent=1) + "\n")
+    return dest
 
 
 def shipped_chart(dim: int) -> dict | None:

@@ -11,8 +11,8 @@ from geodem.workflow import run_workflow
 
 ROOT = Path(__file__).resolve().parents[2]
 SANDSTONE = load_material("sandstone").values()
-# the triaxial workflow's specimen and rate, in both tests
-SPECIMEN = {"dim": 2, "size": [0.05, 0.1], "d_mean": 0.005, "distri_rate": 0.2,
+# the triaxial workflow's specimen (the calibration's UCS specimen) and rate, in both tests
+SPECIMEN = {"dim": 2, "size": [0.1, 0.2], "d_mean": 0.005, "distri_rate": 0.2,
             "material": "rock"}
 ROCK = {"rock": {"library": "sandstone"}}
 
