@@ -52,7 +52,7 @@ def friction_study(out_dir, material: str = "sandstone", sigma3: float = 10e6,
     rows = []
     for label, change in variants:
         w = dict(doc)
-        w["materials"] = {"rock": dict({"rho": rho, "dim": 2}, **base, **change)}
+        w["materials"] = {"rock": {"rho": rho, "dim": 2, **base, **change}}
         step = dict(doc["steps"][0], confining_pressures=[0.0, float(sigma3)],
                     max_strain=float(max_strain))
         w["steps"] = [step]

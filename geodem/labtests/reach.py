@@ -155,17 +155,26 @@ def outside_region(targets: dict, dim: int, structure: dict, tolerances: dict,
     if len(hull) < 4:
         return None
     ratio = float(targets["Cu"]) / float(targets["Tu"])
-    q = np.array([[math.log(ratio), float(targets["nu"])]])
-    if Delaunay(hull).find_simplex(q)[0] >= 0:
+    nu = float(targets["nu"])
+    tri = Delaunay(hull)
+    if tri.find_simplex(np.array([[math.log(ratio), nu]]))[0] >= 0:
         return None
     b = chart["bounds"]
-    near = [p for p in chart["points"] if "ratio" in p]
-    at_nu = [p["ratio"] for p in near if abs(p["nu"] - float(targets["nu"])) <= 0.05]
-    span = (f"; at nu {float(targets['nu']):.2f} +- 0.05 it spans Cu / Tu "
-            f"{min(at_nu):.3g}-{max(at_nu):.3g}" if at_nu else "")
-    return (f"Cu / Tu = {ratio:.3g} with nu = {float(targets['nu']):.3g} is outside what the "
+    # the hull's extent in Cu / Tu at the target's nu (and in nu at its Cu / Tu)
+    xs = np.linspace(hull[:, 0].min(), hull[:, 0].max(), 400)
+    at_nu = xs[tri.find_simplex(np.column_stack([xs, np.full_like(xs, nu)])) >= 0]
+    ys = np.linspace(hull[:, 1].min(), hull[:, 1].max(), 400)
+    at_r = ys[tri.find_simplex(np.column_stack([np.full_like(ys, math.log(ratio)), ys])) >= 0]
+    span = []
+    if at_nu.size:
+        span.append(f"at nu {nu:.2f} it reaches Cu / Tu {math.exp(at_nu.min()):.3g}-"
+                    f"{math.exp(at_nu.max()):.3g}")
+    if at_r.size:
+        span.append(f"at Cu / Tu {ratio:.3g} nu {at_r.min():.2f}-{at_r.max():.2f}")
+    span = ("; " + ", ".join(span) + " (within tolerance)") if span else ""
+    return (f"Cu / Tu = {ratio:.3g} with nu = {nu:.3g} is outside what the "
             f"{dim}-D {chart['structure']['packing']} packing reaches: measured Cu / Tu "
-            f"{b['ratio'][0]:.3g}-{b['ratio'][1]:.3g}, nu {b['nu'][0]:.3g}-{b['nu'][1]:.3g}"
+            f"{b['ratio'][0]:.3g}-{b['ratio'][1]:.3g}, nu {b['nu'][0]:.2f}-{b['nu'][1]:.2f}"
             f"{span} (geodem study reach; docs/calibration.md, 'Reachable region')")
 
 

@@ -214,6 +214,27 @@ def test_calibrate_bad_prefer(tmp_path):
     assert "--prefer 'xx': allowed: Cu or Tu" in flat(res.output)
 
 
+def test_calibrate_refuses_a_rock_outside_the_charted_region(tmp_path):
+    import yaml
+
+    from geodem.labtests.reach import shipped_chart
+
+    doc = yaml.safe_load((ROOT / "materials" / "sandstone.yaml").read_text())
+    doc.pop("calibrated", None)
+    doc["name"] = "too_strong_in_compression"
+    top = shipped_chart(2)["bounds"]["ratio"][1]
+    doc["properties"]["Cu"]["value"] = 2.0 * top * doc["properties"]["Tu"]["value"]
+    path = tmp_path / "odd.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    before = path.read_text()
+    res = invoke("calibrate", str(path), "-o", str(tmp_path / "c"))
+    assert res.exit_code == 2, res.output
+    out = flat(res.output)
+    assert str(path) in out and "is outside what the 2-D isotropic packing reaches" in out
+    assert f"{top:.3g}" in out and "--force" in out
+    assert not (tmp_path / "c").exists() and path.read_text() == before
+
+
 def test_bench_with_nothing_run_exits_2(monkeypatch):
     import geodem.bench
 

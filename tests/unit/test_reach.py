@@ -35,7 +35,7 @@ def test_a_target_within_tolerance_of_the_edge_is_accepted(nu, ratio):
 def test_a_target_outside_is_refused_with_the_measured_bounds(nu, ratio):
     why = _why(nu, ratio)
     assert why is not None
-    assert "measured Cu / Tu 8-20, nu 0.1-0.3" in why
+    assert "measured Cu / Tu 8-20, nu 0.10-0.30" in why
 
 
 def test_another_micro_structure_is_not_judged_by_the_chart():
@@ -70,3 +70,29 @@ def test_two_point_friction_angle_by_hand():
     k = (1 + math.sin(math.radians(35))) / (1 - math.sin(math.radians(35)))
     assert two_point_angle(75e6, 75e6 + k * 10e6, 10e6) == pytest.approx(35.0, abs=1e-9)
     assert two_point_angle(75e6, 80e6, 10e6) == 0.0  # K < 1: no frictional strengthening
+
+
+def test_the_friction_study_changes_one_parameter_per_variant(tmp_path, monkeypatch):
+    import yaml
+
+    import geodem.workflow as wf
+    from geodem.labtests.friction import friction_study
+    from geodem.materials_library import load_material
+
+    seen = []
+
+    def fake_run(path, out, **kw):
+        doc = yaml.safe_load(open(path))
+        seen.append(doc)
+        return 0, {"status": "ok", "peak_strengths": [75e6, 110e6]}
+
+    monkeypatch.setattr(wf, "run_workflow", fake_run)
+    rec = friction_study(tmp_path, variants=(("base", {}), ("mu 0.5", {"mu": 0.5})))
+    base = load_material("sandstone").calibrated["2d"]["element"]
+    assert seen[0]["materials"]["rock"]["mu"] == base["mu"]
+    assert seen[1]["materials"]["rock"]["mu"] == 0.5
+    assert seen[1]["materials"]["rock"]["kn_per_d"] == base["kn_per_d"]
+    assert seen[1]["steps"][0]["confining_pressures"] == [0.0, 10e6]
+    # K = 3.5: sin phi = 2.5 / 4.5
+    assert rec["rows"][1]["phi_deg"] == pytest.approx(math.degrees(math.asin(2.5 / 4.5)))
+    assert (tmp_path / "friction.md").exists()
