@@ -21,7 +21,9 @@ __all__ = ["friction_study", "DEFAULT_VARIANTS"]
 #: (label, element-parameter changes) run by default
 DEFAULT_VARIANTS = (("as calibrated", {}), ("mu 0.35", {"mu": 0.35}), ("mu 0.5", {"mu": 0.5}),
                     ("bond gap 0.1", {"bond_gap": 0.1}),
-                    ("bond strength Weibull m 3", {"bond_strength_weibull": 3.0}))
+                    ("bond strength Weibull m 3", {"bond_strength_weibull": 3.0}),
+                    ("mu 0.4", {"mu": 0.4}), ("mu 0.45", {"mu": 0.45}),
+                    ("mu 0.35, bond gap 0.1", {"mu": 0.35, "bond_gap": 0.1}))
 
 
 def two_point_angle(s1_0: float, s1_c: float, s3: float) -> float:

@@ -6,13 +6,13 @@ elements, the fast 2e9 Pa/s ramp) run end to end (summary keys, mass balance, pi
 VALIDATION.md (measured values: docs/hydraulic_fracturing.md):
 
 * isotropic (four fixed boundaries): 2-4 crack arms for each of seeds 0-2; breakdown within
-  30 % of Hubbert-Willis ``P_b = T``: with T from direct tension of a strip of the plate's own
-  packing (``tensile_strength_from: direct_tension``, 4.28 MPa) measured 5.44 MPa (1.27 x, met);
-  with T the calibrated Tu of materials/sandstone.yaml (3.90 MPa, direct tension of the larger
-  calibration specimen) 1.40 x, kept as a strict xfail;
+  30 % of Hubbert-Willis ``P_b = T``: NOT met, measured 5.70 MPa, 1.46 x the calibrated Tu of
+  materials/sandstone.yaml (3.90 MPa, direct tension of the calibration specimen) and 1.39 x T
+  from direct tension of a strip of the plate's own packing (``tensile_strength_from:
+  direct_tension``, 4.11 MPa): two strict xfails;
 * confined (sigma_H = 6 MPa along x, sigma_h = 3 MPa): the dominant arm within 15 deg of
-  sigma_H (measured 8.4 deg); breakdown within 30 % of ``3 sigma_h - sigma_H + T`` = 6.90 MPa:
-  NOT met, measured 13.36 MPa (1.94 x), a strict xfail;
+  sigma_H (measured 9.3 deg); breakdown within 30 % of ``3 sigma_h - sigma_H + T`` = 6.90 MPa:
+  NOT met, measured 13.67 MPa (1.98 x), a strict xfail;
 * fluid mass balance < 1e-6 in all (measured ~1e-16).
 """
 import json
@@ -210,10 +210,10 @@ def test_isotropic_plate_grows_two_to_four_arms(isotropic_seeds):
 
 @pytest.mark.slow
 @pytest.mark.validation
-@pytest.mark.xfail(strict=True, reason="measured breakdown 5.44 MPa = 1.40 x Hubbert-Willis "
+@pytest.mark.xfail(strict=True, reason="measured breakdown 5.70 MPa = 1.46 x Hubbert-Willis "
                                        "T = 3.90 MPa (the calibrated Tu: direct tension of the "
                                        "0.1 x 0.2 m calibration specimen); with T from the "
-                                       "plate's own 0.05 x 0.1 m strip (4.28 MPa) it is 1.27 x, "
+                                       "plate's own 0.05 x 0.1 m strip (4.11 MPa) it is 1.39 x, "
                                        "see docs/hydraulic_fracturing.md")
 def test_isotropic_breakdown_within_30_percent_of_hubbert_willis(isotropic):
     assert isotropic["breakdown_pressure"] == pytest.approx(
@@ -235,12 +235,12 @@ def test_direct_tension_strength_of_the_plate_packing(isotropic_direct):
     s, out = isotropic_direct
     r = s["results"]["injection"]
     sub = json.loads((out / "tensile_test" / "out" / "summary.json").read_text())
-    # T is the strip's F_peak / A (A = width x thickness = 10 d_mean x d_mean; the isotropic
-    # packing's strip measures 0.0458 m across its element centres and faces)
+    # T is the strip's F_peak / A (A = width x thickness = 10 d_mean x d_mean, the width from
+    # surface to surface: the isotropic packing's faces are flat)
     res = sub["results"]["tension"]
-    assert res["area"] == pytest.approx(10 * 0.005 * 0.005, rel=0.1)
+    assert res["area"] == pytest.approx(10 * 0.005 * 0.005, rel=1e-4)
     assert s["tensile_strength"] == pytest.approx(res["peak_force"] / res["area"], rel=1e-12)
-    # measured 4.28 MPa on the isotropic packing of the 2-D sandstone (its calibrated Tu, direct
+    # measured 4.11 MPa on the isotropic packing of the 2-D sandstone (its calibrated Tu, direct
     # tension of the twice larger calibration specimen: 3.90); strips scatter ~12 % (docs)
     assert 3.5e6 < s["tensile_strength"] < 5.0e6
     assert "direct tension" in r["tensile_strength_source"]
@@ -252,6 +252,11 @@ def test_direct_tension_strength_of_the_plate_packing(isotropic_direct):
 
 @pytest.mark.slow
 @pytest.mark.validation
+@pytest.mark.xfail(strict=True, reason="measured breakdown 5.70 MPa = 1.39 x T = 4.11 MPa from "
+                                       "direct tension of a 0.05 x 0.1 m strip of the plate's "
+                                       "packing (1.27 x with the centre-to-centre area of "
+                                       "before, which made the strip 9 % stronger), see "
+                                       "docs/hydraulic_fracturing.md")
 def test_isotropic_breakdown_within_30_percent_of_direct_tension_hubbert_willis(
         isotropic_direct):
     s, _ = isotropic_direct
@@ -261,7 +266,7 @@ def test_isotropic_breakdown_within_30_percent_of_direct_tension_hubbert_willis(
 @pytest.mark.slow
 @pytest.mark.validation
 def test_confined_fracture_follows_sigma_H(confined):
-    # measured: dominant arm at 171.6 deg (8.4 deg from sigma_H), 2 branches
+    # measured: dominant arm at 170.7 deg (9.3 deg from sigma_H), 2 branches
     assert confined["sigma_H_angle_deg"] == 0.0
     assert axis_misfit_deg(confined["dominant_crack_angle_deg"],
                            confined["sigma_H_angle_deg"]) < 15.0
@@ -273,11 +278,11 @@ def test_confined_fracture_follows_sigma_H(confined):
 
 @pytest.mark.slow
 @pytest.mark.validation
-@pytest.mark.xfail(strict=True, reason="measured breakdown 13.36 MPa against 3 sigma_h - "
+@pytest.mark.xfail(strict=True, reason="measured breakdown 13.67 MPa against 3 sigma_h - "
                                        "sigma_H + T = 6.90 MPa (T = 3.90 MPa, the calibrated "
-                                       "direct-tension Tu): 1.94 x; the isotropic plate's "
-                                       "breakdown is 1.4 T, so the confinement adds 8 MPa where "
-                                       "Kirsch's hoop stress gives 3, see "
+                                       "direct-tension Tu): 1.98 x; the isotropic plate's "
+                                       "breakdown is 1.46 T, so the confinement adds 8 MPa "
+                                       "where Kirsch's hoop stress gives 3, see "
                                        "docs/hydraulic_fracturing.md")
 def test_confined_breakdown_within_30_percent_of_hubbert_willis(confined):
     assert confined["breakdown_pressure"] == pytest.approx(
