@@ -2,7 +2,9 @@
 
 The calibration's two exact scalings (module :mod:`geodem.labtests.calibrate`) leave nu and
 Cu / Tu functions of the shape variables only: ``s = ks / kn`` and ``rho_s = fs0 / (kn xb)``
-(per size), at a fixed micro-structure and friction ``mu``. So the region is a map of that
+(per size), at a fixed micro-structure and friction ``mu`` (the charts use the library
+sandstone's mu 0.25; more friction raises Cu, so for another mu the bounds are approximate).
+So the region is a map of that
 plane: :func:`reach_study` measures nu and Cu / Tu (UCS and direct tension of the calibration
 specimen, as :func:`geodem.labtests.calibrate.measure`) on a grid of ``(s, rho_s)`` and writes
 ``reach.json`` and ``reach.png``. The shipped charts (``geodem/labtests/reach_2d.json``,
@@ -19,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["reach_study", "outside_region", "shipped_chart", "save_chart", "DEFAULT_S", "DEFAULT_RHO"]
+__all__ = ["reach_study", "outside_region", "shipped_chart", "save_chart", "DEFAULT_S",
+           "DEFAULT_RHO"]
 
 DEFAULT_S = (0.15, 0.25, 0.35, 0.45, 0.6, 0.8, 1.2)
 DEFAULT_RHO = (0.1, 0.3, 1.0, 3.0, 10.0, 50.0)
