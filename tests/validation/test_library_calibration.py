@@ -47,10 +47,9 @@ def _user_rock(tmp_path, name, values):
 
 
 @pytest.mark.parametrize("name, values", [
-    # measured 2026-12-02 (2-D): iteration 2, 46 s (3-D, before the surface-to-surface area:
-    # iteration 3, 306 s)
+    # measured 2026-12-02 (2-D): iteration 2, 46 s; 3-D: iteration 3, 231 s
     ("hard_granite", {"E": 70e9, "nu": 0.22, "Cu": 250e6, "Tu": 12e6, "mu_i": 1.0, "rho": 2700.0}),
-    # measured: iteration 4, 57 s (3-D, before the surface-to-surface area: iteration 4, 268 s)
+    # measured: iteration 4, 57 s; 3-D: iteration 5, 237 s
     ("weak_sandstone", {"E": 8e9, "nu": 0.25, "Cu": 30e6, "Tu": 2.5e6, "mu_i": 0.6,
                         "rho": 2200.0}),
 ])
