@@ -881,8 +881,8 @@ def _reach(out, dim, s_values, rho_values, save, backend):
 
     from geodem.labtests import reach
 
-    s_v = _float_list(s_values, "--s") if s_values else reach.DEFAULT_S
-    r_v = _float_list(rho_values, "--rho") if rho_values else reach.DEFAULT_RHO
+    s_v = _float_list(s_values, "--s") if s_values else reach.DEFAULT_GRID[dim][0]
+    r_v = _float_list(rho_values, "--rho") if rho_values else reach.DEFAULT_GRID[dim][1]
     o = _fresh_out_dir(out, overwrite=(Path(out) / "reach.json").exists())
     con = _out()
     con.print(f"reachable region, {dim}-D: {len(s_v)} x {len(r_v)} points -> {out}",

@@ -21,11 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["reach_study", "outside_region", "shipped_chart", "save_chart", "DEFAULT_S",
-           "DEFAULT_RHO"]
+__all__ = ["reach_study", "outside_region", "shipped_chart", "save_chart", "DEFAULT_GRID"]
 
 DEFAULT_S = (0.15, 0.25, 0.35, 0.45, 0.6, 0.8, 1.2)
 DEFAULT_RHO = (0.1, 0.3, 1.0, 3.0, 10.0, 50.0)
+#: the 3-D grid (a 3-D point costs about 4 x a 2-D one; below ks / kn 0.25 the 3-D packing is
+#: near its mechanism)
+DEFAULT_GRID = {2: (DEFAULT_S, DEFAULT_RHO),
+                3: ((0.25, 0.33, 0.41, 0.53, 0.8, 1.2), (0.5, 2.0, 8.0, 50.0))}
 #: a fitted nu at or above this (2-D, 3-D) is no elastic solid: the packing is a mechanism
 #: there (isotropic elasticity needs nu < 1 in 2-D and nu < 1/2 in 3-D)
 NU_LIMIT = {2: 1.0, 3: 0.5}
@@ -42,16 +45,18 @@ def _base_element(dim: int) -> dict:
     return dict(load_material("sandstone").calibrated[f"{dim}d"]["element"])
 
 
-def reach_study(dim: int, out_dir, s_values=DEFAULT_S, rho_values=DEFAULT_RHO, backend=None,
+def reach_study(dim: int, out_dir, s_values=None, rho_values=None, backend=None,
                 progress=None) -> dict:
     """Measure nu and Cu / Tu over the ``(s, rho_s)`` grid on the calibration specimen of
     ``dim`` (isotropic packing, seed 0). A point whose specimen cannot be measured (a
     mechanism near ``s = 0``: no E / nu fit, or a fitted nu beyond :data:`NU_LIMIT`) is kept
-    with its error and left out of the region. Returns the record
-    written to ``reach.json``."""
+    with its error and left out of the region. The grid defaults to :data:`DEFAULT_GRID`.
+    Returns the record written to ``reach.json``."""
     from geodem.labtests.calibrate import CalibrationSpec, measure
     from geodem.materials_library import load_material
 
+    s_values = DEFAULT_GRID[dim][0] if s_values is None else s_values
+    rho_values = DEFAULT_GRID[dim][1] if rho_values is None else rho_values
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     base = _base_element(dim)
