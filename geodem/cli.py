@@ -552,12 +552,26 @@ BondWeibullOpt = Annotated[Optional[float], typer.Option(
                                              "scatter (default: none, or as stored).")]
 
 
+def _phi_text(rec) -> str:
+    """The friction angle of a calibration iteration, as the progress line prints it."""
+    if "phi_abs_error" not in rec:
+        return ""
+    phi = rec["measured"].get("phi")
+    if phi is None:
+        return ", phi not measured yet (mu " + f"{rec['element']['mu']:.3g})"
+    if not math.isfinite(phi):
+        return f", phi: no confined peak (mu {rec['element']['mu']:.3g})"
+    return f", phi {phi:.1f} deg ({rec['phi_abs_error']:+.1f}, mu {rec['element']['mu']:.3g})"
+
+
 @app.command("calibrate", help=(
-    "Calibrate a library material: find element parameters whose virtual UCS and direct "
-    "tension tests give its E, nu, UCS (Cu) and tensile strength (Tu); the Brazilian disc is "
-    "run once with the result as a check.\n\n"
-    "Each iteration builds the same specimen, runs the two lab workflows on it (kept under "
-    "DIR/iterations/NN/) and takes a step with the model's exact scalings. Writes "
+    "Calibrate a library material: find element parameters whose virtual UCS, direct "
+    "tension and triaxial tests give its E, nu, UCS (Cu), tensile strength (Tu) and friction "
+    "angle atan(mu_i); the Brazilian disc is run once with the result as a check.\n\n"
+    "Each iteration builds the same specimen, runs the UCS and direct-tension workflows on it "
+    "and, once those four are close, a two-stage triaxial test (sigma3 = 0 and 0.133 Cu) for "
+    "the friction angle (kept under DIR/iterations/NN/), and takes a step with the model's "
+    "exact scalings. Writes "
     "summary.json (targets, measured, rel_errors, iterations, wall_time_s), history.csv, "
     "calibrated.yaml and convergence.png into -o DIR; --save also stores the result in the "
     "material file's 'calibrated' block.\n\n"
@@ -592,6 +606,10 @@ def calibrate_cmd(
                                                         "outside the charted reachable "
                                                         "region (then E, nu and --prefer "
                                                         "are matched).")] = False,
+    no_friction: Annotated[bool, typer.Option(
+        "--no-friction", help="Keep the contact friction at the lattice value from mu_i "
+                              "instead of matching the friction angle atan(mu_i) by a "
+                              "triaxial test.")] = False,
     backend: Annotated[Optional[str], typer.Option(
         "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
 ):
@@ -619,7 +637,7 @@ def calibrate_cmd(
         spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim, d_mean=d_mean,
                                ucs_size=size, seed=seed, iterations=iterations,
                                backend=backend, prefer=prefer, structure=structure,
-                               check_reach=not force)
+                               check_reach=not force, friction=not no_friction)
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull: {exc}", USER_ERROR)
     if not force:
@@ -635,8 +653,8 @@ def calibrate_cmd(
         m, e = rec["measured"], rec["rel_errors"]
         con.print(f"iteration {i}: E {m['E']:.4g} Pa ({e['E']:+.1%}), nu {m['nu']:.3f} "
                   f"({rec['nu_abs_error']:+.3f}), Cu {m['Cu']:.4g} Pa ({e['Cu']:+.1%}), "
-                  f"Tu {m['Tu']:.4g} Pa ({e['Tu']:+.1%}); {rec['wall_time_s']:.0f} s",
-                  highlight=False)
+                  f"Tu {m['Tu']:.4g} Pa ({e['Tu']:+.1%}){_phi_text(rec)}; "
+                  f"{rec['wall_time_s']:.0f} s", highlight=False)
 
     summary = calibrate(spec, o, progress=report)
     b = summary["brazilian"]
@@ -660,7 +678,8 @@ def calibrate_cmd(
     "Measure the rock a material's calibrated element parameters make: run the calibration's "
     "UCS, direct-tension and Brazilian workflows once (specimens as geodem calibrate builds "
     "them) and print E, nu, Cu, Tu (direct tension), Cu / Tu and the Brazilian strength "
-    "against the lab values. --packing, --bond-gap and "
+    "against the lab values; --friction also runs the calibration's two-stage triaxial test "
+    "and prints the friction angle against atan(mu_i). --packing, --bond-gap and "
     "--bond-weibull replace the stored micro-structure, to see what each does.\n\n"
     "Writes summary.json (measured, targets, element, structure) and the two runs into "
     "-o DIR. Exit status: 0 done, 1 a run failed, 2 invalid input."))
@@ -673,12 +692,15 @@ def rock_cmd(
         "--packing", help="Packing recipe: isotropic or deposit (2-D only).")] = None,
     bond_gap: BondGapOpt = None,
     bond_weibull: BondWeibullOpt = None,
+    friction: Annotated[bool, typer.Option("--friction", help="Also run the triaxial friction "
+                                                              "test (two stages).")] = False,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
 ):
     import json
 
-    from geodem.labtests.calibrate import CalibrationSpec, brazilian_check, measure
+    from geodem.labtests.calibrate import (CalibrationSpec, brazilian_check, friction_angle,
+                                           measure, measure_friction)
     from geodem.materials import STRUCTURE_KEYS
     from geodem.materials_library import load_material
 
@@ -715,13 +737,23 @@ def rock_cmd(
                "targets": {k: t[k] for k in ("E", "nu", "Cu", "Tu")},
                "ratio": m["Cu"] / m["Tu"], "target_ratio": t["Cu"] / t["Tu"],
                "brazilian": b, "wall_time_s": m["wall_time_s"] + b["wall_time_s"]}
+    phi_text = ""
+    if friction:
+        f = measure_friction(spec, el, o / "triaxial")
+        phi_t = friction_angle(t["mu_i"])
+        summary.update(friction_test=f, target_phi=phi_t,
+                       wall_time_s=summary["wall_time_s"] + f["wall_time_s"])
+        phi_text = (f"; phi {f['phi']:.1f} deg ({f['phi'] - phi_t:+.1f})"
+                    if math.isfinite(f["phi"]) else "; phi: no confined peak")
+        if not math.isfinite(f["phi"]):
+            summary["friction_test"] = dict(f, phi=None)
     (o / "summary.json").write_text(json.dumps(summary, indent=2))
     con.print(f"E {m['E']:.4g} Pa ({m['E'] / t['E'] - 1:+.1%}), nu {m['nu']:.3f} "
               f"({m['nu'] - t['nu']:+.3f}), Cu {m['Cu']:.4g} Pa ({m['Cu'] / t['Cu'] - 1:+.1%}), "
               f"Tu {m['Tu']:.4g} Pa ({m['Tu'] / t['Tu'] - 1:+.1%}), Cu / Tu {summary['ratio']:.3g} "
               f"(lab {summary['target_ratio']:.3g}); Brazilian {b['tensile_strength']:.4g} Pa "
-              f"({b['tensile_strength'] / t['Tu'] - 1:+.1%}); {summary['wall_time_s']:.0f} s",
-              highlight=False)
+              f"({b['tensile_strength'] / t['Tu'] - 1:+.1%}){phi_text}; "
+              f"{summary['wall_time_s']:.0f} s", highlight=False)
 
 
 def _float_list(value: Optional[str], name: str, integer=False):

@@ -8,27 +8,36 @@ strengths move together. geodem uses what is exact about the bonded-particle mod
 
 Unknowns (size-free, :func:`geodem.materials.per_size`), in the log / ratio variables::
 
-    u = (ln kn_per_d, s = ks / kn, ln F_t, ln rho_s)   with F_t = kn_per_d xb_per_d  [Pa]
-                                                            rho_s = fs0_per_d2 / F_t  [-]
+    u = (ln kn_per_d, s = ks / kn, ln F_t, ln rho_s, ln mu)   with F_t = kn_per_d xb_per_d  [Pa]
+                                                                rho_s = fs0_per_d2 / F_t  [-]
 
 (``F_t d^2`` is a bond's tensile breaking force, ``rho_s`` the ratio of its shear to its tensile
-strength; ``mu`` stays at the lattice value from ``mu_i``). Measurements
-``y = (ln E, nu, ln Tu, ln Cu)``. In quasi-static small-strain loading:
+strength, ``mu`` the friction coefficient of the contacts). Measurements ``y = (ln E, nu, ln
+Tu, ln Cu, phi)``; ``phi`` is the friction angle of a two-stage triaxial test on the same
+packing (sigma3 = 0 and sigma3 = :data:`FRICTION_CONFINEMENT` x Cu, the two-point Mohr-Coulomb
+angle, :func:`geodem.labtests.friction.two_point_angle`), matched to ``atan(mu_i)`` when
+``spec.friction`` is on; with it off, ``mu`` stays at the lattice value from ``mu_i``. In
+quasi-static small-strain loading:
 
 * scaling both spring stiffnesses by ``a`` at fixed breaking *forces* scales E by ``a`` and
-  leaves nu and both strengths unchanged (the forces for a given stress do not change);
-* scaling both breaking forces by ``b`` scales both strengths by ``b`` and changes nothing else.
+  leaves nu, phi and both strengths unchanged (the forces for a given stress do not change);
+* scaling both breaking forces by ``b`` scales both strengths by ``b`` and changes nothing else
+  (the friction test's confinement is a fixed fraction of the target Cu, and the Mohr-Coulomb
+  line is straight over it).
 
 So ``ln E - ln kn`` and each ``ln strength - ln F_t`` are functions of the shape variables
-``x = (s, ln rho_s)`` only, and so are nu and Cu / Tu. The solver (:func:`next_unknowns`) fits
-each of them by a local weighted plane over every sample so far (:func:`local_plane`, a ridge
-toward the prior slopes), solves ``nu(x) = nu_t`` and ``Cu/Tu(x) = ratio_t`` together for ``x``
-(one step at most), and sets the two levels by the exact scalings. Iteration 1 runs the prior
-guess (lattice conversion times rates measured on random packings). Every iteration builds the
-same packing (same seed) with the spec's micro-structure (``structure``: packing recipe, bond
-range, bond-strength scatter, stored with the result) and runs the UCS and the direct-tension
-workflows on it (the same specimen pushed and pulled), whose files are kept under
-``iterations/NN/``. Tu is the direct-tension strength: the one test that loads a whole
+``x = (s, ln rho_s, ln mu)`` only, and so are nu, Cu / Tu and phi. The solver
+(:func:`next_unknowns`) fits each of them by a local weighted plane over every sample so far
+(:func:`local_plane`, a ridge toward the prior slopes), solves ``nu(x) = nu_t``, ``Cu/Tu(x) =
+ratio_t`` and ``phi(x) = phi_t`` together for ``x`` (one step at most), and sets the two levels
+by the exact scalings. The triaxial test is the dearest of the three (two stages, each to its
+peak), so it runs only once E, nu, Cu and Tu are within :data:`FRICTION_GATE` tolerances;
+until then ``mu`` stays. Iteration 1 runs the prior guess (lattice conversion times rates
+measured on random packings; ``mu`` from the measured phi(mu) line). Every iteration builds
+the same packing (same seed) with the spec's micro-structure (``structure``: packing recipe,
+bond range, bond-strength scatter, stored with the result) and runs the UCS and the
+direct-tension workflows on it (the same specimen pushed and pulled), whose files are kept
+under ``iterations/NN/``. Tu is the direct-tension strength: the one test that loads a whole
 cross-section in uniform tension. The Brazilian disc is run once with the result, as a check
 (:func:`brazilian_check`, stored with the calibration): calibrated on the Brazilian peak, the
 bonded discs had a direct-tension strength of 0.24 x the Brazilian one (sandstone, 2-D), since
@@ -41,11 +50,13 @@ steps of ``s`` below the measurement noise gave a near-zero secant of nu(s), and
 changed ``s`` by 0.4 and E by -58 %. A later one solved nu in ``s`` alone and Cu / Tu in
 ``rho_s`` alone; nu depends on ``rho_s`` too, and four rocks did not converge.)
 
-Tolerances: E, Cu, Tu within 5 %, nu within 0.03 absolute. Targets outside the region charted
-for the packing (:mod:`geodem.labtests.reach`: the (Cu / Tu, nu) measured over a grid of the
-shape variables) are refused before the first iteration, with the measured bounds. A target
-found out of reach on the way (nu beyond the nu(s) range of the packing, Cu/Tu beyond the ratio
-the bond law allows) is reported as unreachable with the reason.
+Tolerances: E, Cu, Tu within 5 %, nu within 0.03 absolute, phi within 2 degrees. Targets
+outside the region charted for the packing (:mod:`geodem.labtests.reach`: the (Cu / Tu, nu)
+measured over a grid of the shape variables) are refused before the first iteration, with
+the measured bounds. A target found out of reach on the way (nu beyond the nu(s) range of the
+packing, Cu/Tu beyond the ratio the bond law allows, phi beyond what the contact friction
+gives: the confined stage does not peak within its strain, or ``mu`` at its bound) is reported
+as unreachable with the reason.
 """
 from __future__ import annotations
 
@@ -61,11 +72,25 @@ import yaml
 from geodem.materials import macro_to_micro, per_size
 
 __all__ = ["CalibrationSpec", "UnreachableTarget", "calibrate", "check_reachable",
-           "brazilian_check", "save_calibration", "calibration_block", "to_unknowns",
-           "from_unknowns", "TOLERANCES"]
+           "brazilian_check", "measure_friction", "friction_angle", "save_calibration",
+           "calibration_block", "to_unknowns", "from_unknowns", "TOLERANCES"]
 
-TOLERANCES = {"E": 0.05, "nu": 0.03, "Cu": 0.05, "Tu": 0.05}  # nu absolute, others relative
-KEYS = ("E", "nu", "Tu", "Cu")
+#: nu absolute, phi absolute [deg], the strengths and E relative
+TOLERANCES = {"E": 0.05, "nu": 0.03, "Cu": 0.05, "Tu": 0.05, "phi": 2.0}
+KEYS = ("E", "nu", "Tu", "Cu")  # the four measured on every iteration
+MU_RANGE = (0.05, 0.6)  # contact friction searched
+#: confining stress of the friction test's second stage over the target Cu (10 MPa for the
+#: 75 MPa sandstone): low confinement, where a rock's mu_i is fitted (materials/*.yaml notes)
+FRICTION_CONFINEMENT = 0.133
+#: a friction-test stage stops once its deviator falls below this fraction of its maximum:
+#: the strength is the first peak. (With 0.5, a confined 2-D sandstone stage that fell from
+#: 104 to 81 MPa after its peak at 1 % strain re-hardened to 110 MPa at 3 %, as the crushed band
+#: compacts between the servo walls, and counted as "no peak".)
+FRICTION_DROP = 0.85
+#: the friction test runs once E, nu, Cu and Tu are within this many tolerances
+FRICTION_GATE = 4.0
+#: score term of a phi that was not measured (or whose confined stage did not peak)
+PHI_MISSING = 99.0
 S_RANGE = (0.0, 1.5)  # ks / kn searched
 RHO_RANGE = (0.05, 50.0)  # fs0 / (kn xb) searched (per d^2)
 MAX_S_STEP = 0.2  # largest change of ks / kn per iteration (nu moves ~0.1 with it)
@@ -78,33 +103,45 @@ PRIOR = {
     # calibrations): nu(s) = 0.50, 0.25, 0.17, 0.15, 0.11 at s = 0.32, 0.46, 0.51, 0.52, 0.63;
     # the prior sets s from the line through the middle; Tu rate: F_t that meets Tu in direct
     # tension over the lattice conversion's
+    # friction: the triaxial box's two-point phi = 22.6, 29.1, 37.7 deg at mu = 0.25, 0.35,
+    # 0.4 (sandstone, `geodem study friction`): about 32 deg per unit of ln mu
     2: {"E": 2.7, "Tu": 4.5, "Cu": 9.0, "s_of_nu": (0.45, 0.25, -1.0),
-        "dlnE_ds": 0.5, "dnu_ds": -1.0, "dlnTu_dlnrho": 0.05, "dlnCu_dlnrho": 0.75},
+        "dlnE_ds": 0.5, "dnu_ds": -1.0, "dlnTu_dlnrho": 0.05, "dlnCu_dlnrho": 0.75,
+        "mu_of_phi": (0.25, 22.6, 32.0), "dlnCu_dlnmu": 0.2},
     # 3-D (isotropic packings, d = 0.01 m specimens, sandstone): nu(s) = 0.37, 0.18, 0.14,
-    # 0.11 at s = 0.33, 0.41, 0.46, 0.53
+    # 0.11 at s = 0.33, 0.41, 0.46, 0.53; friction: the 2-D line (not measured in 3-D yet)
     3: {"E": 2.7, "Tu": 3.6, "Cu": 6.5, "s_of_nu": (0.41, 0.18, -0.8),
-        "dlnE_ds": 0.5, "dnu_ds": -0.8, "dlnTu_dlnrho": 0.05, "dlnCu_dlnrho": 0.75},
+        "dlnE_ds": 0.5, "dnu_ds": -0.8, "dlnTu_dlnrho": 0.05, "dlnCu_dlnrho": 0.75,
+        "mu_of_phi": (0.25, 22.6, 32.0), "dlnCu_dlnmu": 0.2},
 }
 
 
 def to_unknowns(el: dict) -> np.ndarray:
-    """``u = (ln kn_per_d, ks/kn, ln(kn_per_d xb_per_d), ln(fs0_per_d2 / (kn_per_d xb_per_d)))``
-    of size-free element parameters."""
+    """``u = (ln kn_per_d, ks/kn, ln(kn_per_d xb_per_d), ln(fs0_per_d2 / (kn_per_d xb_per_d)),
+    ln mu)`` of size-free element parameters."""
     ft = el["kn_per_d"] * el["xb_per_d"]
     return np.array([math.log(el["kn_per_d"]), el["ks_per_d"] / el["kn_per_d"], math.log(ft),
-                     math.log(el["fs0_per_d2"] / ft)])
+                     math.log(el["fs0_per_d2"] / ft), math.log(el["mu"])])
 
 
-def from_unknowns(u, mu: float) -> dict:
-    """Inverse of :func:`to_unknowns` (``mu`` carried through)."""
+def from_unknowns(u) -> dict:
+    """Inverse of :func:`to_unknowns`."""
     kn = math.exp(u[0])
     ft = math.exp(u[2])
     return {"kn_per_d": kn, "ks_per_d": float(u[1]) * kn, "xb_per_d": ft / kn,
-            "fs0_per_d2": math.exp(u[3]) * ft, "mu": float(mu)}
+            "fs0_per_d2": math.exp(u[3]) * ft, "mu": math.exp(float(u[4]))}
+
+
+def friction_angle(mu_i: float) -> float:
+    """The rock's friction angle ``phi = atan(mu_i)`` [deg]."""
+    return math.degrees(math.atan(float(mu_i)))
 
 
 def _outputs(m: dict) -> np.ndarray:
-    return np.array([math.log(m["E"]), m["nu"], math.log(m["Tu"]), math.log(m["Cu"])])
+    """``y``; a phi not measured is NaN, one whose confined stage did not peak is +inf."""
+    phi = m.get("phi", math.nan)
+    return np.array([math.log(m["E"]), m["nu"], math.log(m["Tu"]), math.log(m["Cu"]),
+                     math.nan if phi is None else float(phi)])
 
 
 @dataclass
@@ -131,6 +168,9 @@ class CalibrationSpec:
     # refuse, before the first iteration, targets outside the charted reachable region
     # (geodem.labtests.reach); False runs them anyway and reports what is out of reach
     check_reach: bool = True
+    # match the friction angle atan(mu_i) by the contact friction mu (a triaxial test per
+    # iteration once the other four are close); False keeps the lattice mu
+    friction: bool = True
 
     def __post_init__(self):
         if self.dim not in (2, 3):
@@ -176,6 +216,10 @@ def prior_guess(spec: CalibrationSpec) -> dict:
     mic = macro_to_micro(t["E"] * p["E"], nu, t["Tu"] * p["Tu"], t["Cu"] * p["Cu"], mi,
                          t["rho"], 1.0)
     el = per_size(mic.element, 1.0)
+    if spec.friction:  # the measured phi(mu) line instead of the lattice's mu
+        mu0, phi0, slope = p["mu_of_phi"]
+        mu = mu0 * math.exp((friction_angle(t["mu_i"]) - phi0) / slope)
+        el["mu"] = float(np.clip(mu, *MU_RANGE))
     if p["s_of_nu"] is not None:
         s0, nu0, slope = p["s_of_nu"]
         s = float(np.clip(s0 + (t["nu"] - nu0) / slope, *S_RANGE))
@@ -185,7 +229,7 @@ def prior_guess(spec: CalibrationSpec) -> dict:
 
 #: slope ranges of the four response functions (physical signs; measured on random packings)
 SLOPES = {"nu_s": (-1.2, -0.2), "lnE_s": (-1.0, 3.0), "ratio_rho": (0.05, 1.5),
-          "strength_rho": (-0.2, 1.5)}
+          "strength_rho": (-0.2, 1.5), "phi_lnmu": (5.0, 80.0)}
 #: smallest spread of ln rho_s over which a saturated strength ratio is believed: measurements
 #: repeat to ~1e-3 (nu) and ~1 % (strengths) between packings of neighbouring parameters
 MIN_SECANT_STEP = 0.05
@@ -200,100 +244,190 @@ STALL = 3
 RATIO_SATURATION = 0.1
 
 
-#: the shape variables (ks/kn, ln rho_s) in units of their largest step per iteration: the
-#: local model weighs samples by their distance from the latest in these units
-SHAPE_SCALE = (MAX_S_STEP, math.log(3.0))
+#: the shape variables (ks/kn, ln rho_s, ln mu) in units of their largest step per iteration:
+#: the local model weighs samples by their distance from the latest in these units
+SHAPE_SCALE = (MAX_S_STEP, math.log(3.0), math.log(1.4))
 #: ridge weight pulling the local slopes toward the prior ones (per unit of SHAPE_SCALE): a
 #: direction the samples have not explored keeps the prior slope
 RIDGE = 0.05
 
 
 def local_plane(X, y, prior, weights):
-    """Plane ``y = y_last + g . (x - x_last)`` through the latest sample of ``X`` (rows) and
-    ``y``, its slopes ``g`` fitted by weighted least squares over the other samples with a
-    ridge pulling them toward ``prior`` (:data:`RIDGE`, in units of :data:`SHAPE_SCALE`).
-    Returns ``(y_last, g)``. (The plane goes through the latest measurement: a free intercept
-    let a far, curved sample hold the model's value 0.04 off the measured nu, and the next
-    steps shrank to 0.008 in ks / kn.)"""
-    X = np.asarray(X, float) / SHAPE_SCALE
+    """Plane ``y = y_last + g . (x - x_last)`` through the latest sample of ``X`` (rows: the
+    first ``X.shape[1]`` shape variables) and ``y``, its slopes ``g`` fitted by weighted least
+    squares over the other samples with a ridge pulling them toward ``prior`` (:data:`RIDGE`,
+    in units of :data:`SHAPE_SCALE`). Returns ``(y_last, g)``. (The plane goes through the
+    latest measurement: a free intercept let a far, curved sample hold the model's value 0.04
+    off the measured nu, and the next steps shrank to 0.008 in ks / kn.)"""
+    X = np.asarray(X, float)
+    scale = np.asarray(SHAPE_SCALE[:X.shape[1]])
+    X = X / scale
     y = np.asarray(y, float)
-    g0 = np.asarray(prior, float) * SHAPE_SCALE
+    g0 = np.asarray(prior, float) * scale
     d = X - X[-1]
     w = np.asarray(weights, float)
     # unknowns g: sum w (y - y_last - g.d)^2 + RIDGE sum (g - g0)^2
     A = d * np.sqrt(w)[:, None]
     b = (y - y[-1]) * np.sqrt(w)
-    R = np.sqrt(RIDGE) * np.eye(2)
+    R = np.sqrt(RIDGE) * np.eye(X.shape[1])
     g = np.linalg.lstsq(np.vstack([A, R]), np.concatenate([b, np.sqrt(RIDGE) * g0]),
                         rcond=None)[0]
-    return float(y[-1]), g / SHAPE_SCALE
+    return float(y[-1]), g / scale
 
 
-def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu"):
+def _weights(X, scale):
+    dist = (X - X[-1]) / np.asarray(scale)
+    return np.exp(-0.5 * (dist ** 2).sum(axis=1))
+
+
+def _phi_plane(X, phi, prior, scale):
+    """phi at the latest ``X`` and its slopes, from the samples where it was measured (a
+    plane through the latest of them, :func:`local_plane`); ``None`` when there is none."""
+    ok = np.isfinite(phi)
+    if not ok.any():
+        return None
+    Xp, yp = X[ok], phi[ok]
+    g = local_plane(Xp, yp, prior, _weights(Xp, scale))[1]
+    g[2] = float(np.clip(g[2], *SLOPES["phi_lnmu"]))
+    return float(yp[-1] + g @ (X[-1] - Xp[-1])), g
+
+
+#: a friction angle is out of reach once a contact friction this much (ratio) above the
+#: highest that peaked hardens: the confined stage has no peak within its strain there
+HARDENING_BRACKET = 1.25
+
+
+def _bracket_mu(U, phi, x_mu):
+    """Contact friction next (``x_mu`` is what the solve wants), given the samples whose
+    confined stage hardened (phi = +inf: no peak, the rock hardens instead of failing). Below
+    the highest mu that peaked, ``x_mu`` stands; above it, the next is at most halfway (in ln
+    mu) to the lowest mu that hardened, and with no peaked sample one step below that. Returns
+    ``(ln mu, out_of_reach)``: out of reach when more friction than the highest that peaked
+    is wanted and :data:`HARDENING_BRACKET` times it hardens (then that highest is kept)."""
+    hard = U[np.isposinf(phi), 4]
+    if not hard.size:
+        return x_mu, False
+    lo_hard = float(hard.min())
+    peaked = U[np.isfinite(phi) & (U[:, 4] < lo_hard), 4]
+    if not peaked.size:
+        return min(x_mu, lo_hard - SHAPE_SCALE[2]), False
+    top = float(peaked.max())
+    if x_mu <= top:
+        return x_mu, False
+    if lo_hard - top <= math.log(HARDENING_BRACKET) + 1e-9:
+        return top, True
+    return min(x_mu, 0.5 * (top + lo_hard)), False
+
+
+def _solve_paired(J, rhs, x_last, bounds, scale):
+    """Step ``x`` solving ``J dx = rhs`` within one ``scale`` and the bounds. A variable that
+    hits a bound is held there, and the other rows are solved again without its paired row
+    (row i goes with variable i: nu with ks/kn, Cu/Tu with rho_s, phi with mu): the target
+    that variable serves is the one out of reach. Returns ``(x_new, step, clipped)`` where
+    ``clipped[i]`` says the variable sits at a bound and still points past it."""
+    n = len(rhs)
+    try:
+        step = np.linalg.solve(J, rhs)
+    except np.linalg.LinAlgError:
+        step = rhs / np.where(np.abs(np.diag(J)) > 1e-12, np.diag(J), 1.0)
+    step = np.clip(step, -np.asarray(scale), scale)
+    x_new = x_last + step
+    held = np.zeros(n, bool)
+    at_bound = np.zeros(n, bool)
+    for i in range(n):
+        lo, hi = bounds[i]
+        if x_new[i] < lo or x_new[i] > hi:
+            held[i] = True
+            at_bound[i] = (x_new[i] < lo and abs(x_last[i] - lo) < 1e-9) or \
+                (x_new[i] > hi and abs(x_last[i] - hi) < 1e-9)
+            x_new[i] = float(np.clip(x_new[i], lo, hi))
+    free = ~held
+    if held.any() and free.any():
+        d_held = x_new[held] - x_last[held]
+        Jf = J[np.ix_(free, free)]
+        r = rhs[free] - J[np.ix_(free, held)] @ d_held
+        try:
+            d_free = np.linalg.solve(Jf, r)
+        except np.linalg.LinAlgError:
+            d_free = np.zeros(int(free.sum()))
+        d_free = np.clip(d_free, -np.asarray(scale)[free], np.asarray(scale)[free])
+        idx = np.flatnonzero(free)
+        for k, i in enumerate(idx):
+            x_new[i] = float(np.clip(x_last[i] + d_free[k], *bounds[i]))
+    return x_new, at_bound
+
+
+def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=False):
     """The next ``u`` from all iterations so far.
 
-    The two exact scalings leave four functions of the two shape variables ``x = (s, ln
-    rho_s)``: ``f_E = ln E - ln kn``, ``nu``, ``f_T = ln Tu - ln F_t``, ``f_C = ln Cu - ln F_t``.
-    Each is modelled near the latest sample by a plane (:func:`local_plane`: weighted least
-    squares over every sample, weights ``exp(-|x_i - x_last|^2 / 2)`` in units of
-    :data:`SHAPE_SCALE`, slopes pulled toward the prior's). ``x`` solves the 2 x 2 linear system
-    ``nu(x) = nu_t``, ``(f_C - f_T)(x) = ln(Cu_t / Tu_t)`` (nu depends on rho_s too: pre-peak
-    cracking of a strong-shear, weak-tension rock widens it), within one step of the latest
-    sample and the bounds; then the levels follow exactly: ``ln kn = ln E_t - f_E(x)``, ``ln F_t =
-    ln S_t - f_S(x)`` (S the preferred strength). A target is flagged unreachable (``nu``, or
-    the strength not preferred) when its variable sits at a bound and the model still points
-    past it, or, for Cu / Tu, when the ratio has saturated (slope below
-    :data:`RATIO_SATURATION` with the target above every sample). Returns ``(u, unreachable)``.
-    (Earlier, nu was solved in ``s`` alone; on the isotropic 2-D packings nu at one ``s``
-    moved from 0.29 to 0.15 as rho_s fell from 22 to 3.5, and four rocks did not converge.)"""
+    The two exact scalings leave five functions of the shape variables ``x = (s, ln rho_s, ln
+    mu)``: ``f_E = ln E - ln kn``, ``nu``, ``f_T = ln Tu - ln F_t``, ``f_C = ln Cu - ln F_t``
+    and ``phi``. Each is modelled near the latest sample by a plane (:func:`local_plane`:
+    weighted least squares over every sample, weights ``exp(-|x_i - x_last|^2 / 2)`` in units
+    of :data:`SHAPE_SCALE`, slopes pulled toward the prior's). ``x`` solves the linear system
+    ``nu(x) = nu_t``, ``(f_C - f_T)(x) = ln(Cu_t / Tu_t)`` and, with ``friction`` and a
+    measured phi, ``phi(x) = phi_t`` (nu depends on rho_s too: pre-peak cracking of a
+    strong-shear, weak-tension rock widens it; Cu on mu), within one step of the latest
+    sample and the bounds (:func:`_solve_paired`); without a measured phi ``mu`` stays. Then
+    the levels follow exactly: ``ln kn = ln E_t - f_E(x)``, ``ln F_t = ln S_t - f_S(x)`` (S the
+    preferred strength). A target is flagged unreachable (``nu``, the strength not preferred,
+    ``phi``) when its variable sits at a bound and the model still points past it, or, for Cu
+    / Tu, when the ratio has saturated (slope below :data:`RATIO_SATURATION` with the target
+    above every sample). Returns ``(u, unreachable)``. (Earlier, nu was solved in ``s`` alone;
+    on the isotropic 2-D packings nu at one ``s`` moved from 0.29 to 0.15 as rho_s fell from
+    22 to 3.5, and four rocks did not converge.)"""
     U, Y = np.asarray(history_u, float), np.asarray(history_y, float)
     p = PRIOR[dim]
-    X = U[:, [1, 3]]
-    dist = (X - X[-1]) / SHAPE_SCALE
-    w = np.exp(-0.5 * (dist ** 2).sum(axis=1))
+    X = U[:, [1, 3, 4]]
+    w = _weights(X, SHAPE_SCALE)
     f_e = Y[:, 0] - U[:, 0]
     ratio = Y[:, 3] - Y[:, 2]
     k = 3 if prefer == "Cu" else 2
     f_s = Y[:, k] - U[:, 2]
     d_ratio = p["dlnCu_dlnrho"] - p["dlnTu_dlnrho"]
-    nu0, g_nu = local_plane(X, Y[:, 1], (p["dnu_ds"], 0.0), w)
-    r0, g_r = local_plane(X, ratio, (0.0, d_ratio), w)
+    nu0, g_nu = local_plane(X, Y[:, 1], (p["dnu_ds"], 0.0, 0.0), w)
+    r0, g_r = local_plane(X, ratio, (0.0, d_ratio, p["dlnCu_dlnmu"]), w)
     g_nu[0] = float(np.clip(g_nu[0], *SLOPES["nu_s"]))
     raw_ratio_slope = float(g_r[1])
     g_r[1] = float(np.clip(g_r[1], *SLOPES["ratio_rho"]))
-    rhs = np.array([y_target[1] - nu0, (y_target[3] - y_target[2]) - r0])
-    J = np.array([g_nu, g_r])
-    try:
-        step = np.linalg.solve(J, rhs)
-    except np.linalg.LinAlgError:
-        step = rhs / np.diag(J)
-    step = np.clip(step, -np.asarray(SHAPE_SCALE), SHAPE_SCALE)
-    bounds = (S_RANGE, tuple(np.log(RHO_RANGE)))
-    x_new = X[-1] + step
-    unreachable = set()
-    for i, key in ((0, "nu"), (1, "Tu" if prefer == "Cu" else "Cu")):
-        lo, hi = bounds[i]
-        at_bound = (x_new[i] < lo and abs(X[-1, i] - lo) < 1e-9) or \
-            (x_new[i] > hi and abs(X[-1, i] - hi) < 1e-9)
-        if at_bound:
-            unreachable.add(key)
-        x_new[i] = float(np.clip(x_new[i], lo, hi))
-    if x_new[0] != X[-1, 0] + step[0] and abs(J[1, 1]) > 1e-12:
-        # ks / kn held at its bound: the strength ratio is met by rho_s alone, at that s
-        d_rho = (rhs[1] - J[1, 0] * (x_new[0] - X[-1, 0])) / J[1, 1]
-        d_rho = float(np.clip(d_rho, -SHAPE_SCALE[1], SHAPE_SCALE[1]))
-        x_new[1] = float(np.clip(X[-1, 1] + d_rho, *bounds[1]))
+    rows = [g_nu, g_r]
+    rhs = [y_target[1] - nu0, (y_target[3] - y_target[2]) - r0]
+    bounds = [S_RANGE, tuple(np.log(RHO_RANGE)), tuple(np.log(MU_RANGE))]
+    phi = _phi_plane(X, Y[:, 4], (0.0, 0.0, p["mu_of_phi"][2]), SHAPE_SCALE) \
+        if friction else None
+    if phi is not None:
+        rows.append(phi[1])
+        rhs.append(y_target[4] - phi[0])
+    n = len(rows)
+    J = np.array(rows)[:, :n]
+    x_new = X[-1].copy()
+    x_new[:n], at_bound = _solve_paired(J, np.array(rhs), X[-1, :n], bounds[:n],
+                                        SHAPE_SCALE[:n])
+    unreachable = {key for key, hit in zip(("nu", "Tu" if prefer == "Cu" else "Cu", "phi"),
+                                           at_bound) if hit}
+    if friction:
+        mu_solved = x_new[2]
+        x_new[2], hardens = _bracket_mu(U, Y[:, 4], mu_solved)
+        if hardens:
+            unreachable.add("phi")
+        if n == 3 and x_new[2] != mu_solved:  # mu held: nu and Cu / Tu solved again
+            r2 = np.array(rhs[:2]) - J[:2, 2] * (x_new[2] - X[-1, 2])
+            x_new[:2], at2 = _solve_paired(J[:2, :2], r2, X[-1, :2], bounds[:2],
+                                           SHAPE_SCALE[:2])
+            unreachable |= {key for key, hit in zip(("nu", "Tu" if prefer == "Cu" else "Cu"),
+                                                    at2) if hit}
     spread = np.ptp(X[:, 1]) if len(X) > 1 else 0.0
     if (len(X) >= 3 and spread >= MIN_SECANT_STEP and raw_ratio_slope < RATIO_SATURATION
             and y_target[3] - y_target[2] > ratio.max()):
         unreachable.add("Tu" if prefer == "Cu" else "Cu")
         x_new[1] = X[int(np.argmax(ratio)), 1]
-    fe0, g_e = local_plane(X, f_e, (p["dlnE_ds"], 0.0), w)
+    fe0, g_e = local_plane(X, f_e, (p["dlnE_ds"], 0.0, 0.0), w)
     fs0, g_s = local_plane(X, f_s, (0.0, p["dlnCu_dlnrho"] if prefer == "Cu"
-                                    else p["dlnTu_dlnrho"]), w)
+                                    else p["dlnTu_dlnrho"],
+                                    p["dlnCu_dlnmu"] if prefer == "Cu" else 0.0), w)
     dx = x_new - X[-1]
     out = U[-1].copy()
-    out[1], out[3] = x_new
+    out[1], out[3], out[4] = x_new
     out[0] = y_target[0] - (fe0 + g_e @ dx)
     out[2] = y_target[k] - (fs0 + g_s @ dx)
     # at most a factor 3 per iteration in the level variables
@@ -334,6 +468,33 @@ def _tension_workflow(spec, el):
     return _specimen_workflow(spec, el, "direct tension", {
         "kind": "direct_tension", "name": "tension", "strain_rate": 0.05,
         "max_strain": max(0.002, 20.0 * peak_strain), "drop": 0.5})
+
+
+def friction_sigma3(spec) -> float:
+    """Confining stress of the friction test's second stage [Pa]."""
+    return FRICTION_CONFINEMENT * float(spec.targets["Cu"])
+
+
+def _triaxial_workflow(spec, el):
+    """The friction test: the triaxial box of the calibration specimen's size and packing, at
+    sigma3 = 0 and :func:`friction_sigma3`, each stage to its peak. The strain rate keeps the
+    time to the unconfined peak near 64 wave transits of the specimen (1/s for the 75 MPa
+    sandstone, as workflows/triaxial.yaml)."""
+    t = spec.targets
+    peak = float(t["Cu"]) / float(t["E"])
+    c = math.sqrt(float(t["E"]) / float(t["rho"]))
+    rate = float(np.clip(peak * c / (64.0 * max(spec.ucs_size)), 0.05, 1.0))
+    model = {"type": "triaxial_box", "dim": spec.dim, "size": list(spec.ucs_size),
+             "d_mean": spec.d_mean, "distri_rate": spec.distri_rate, "material": "rock"}
+    return {"metadata": {"name": "calibration_triaxial", "seed": spec.seed,
+                         "description": f"calibration of {spec.name}: friction angle"},
+            "model": model,
+            "materials": {"rock": _material_block(spec, el)},
+            "steps": [{"kind": "triaxial", "name": "triaxial",
+                       "confining_pressures": [0.0, friction_sigma3(spec)],
+                       "strain_rate": rate, "max_strain": max(0.03, 6.0 * peak),
+                       "drop": FRICTION_DROP}],
+            "outputs": {"observables": {"every": 1000}}}
 
 
 def _brazilian_workflow(spec, el):
@@ -378,6 +539,25 @@ def measure(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
             "Tu": float(d["tensile_strength"]), "wall_time_s": time.perf_counter() - t0}
 
 
+def measure_friction(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
+    """Run the friction test (:func:`_triaxial_workflow`) with element parameters ``el``;
+    returns ``phi`` [deg] (the two-point Mohr-Coulomb angle of the two peaks; ``math.inf``
+    when the confined stage did not peak: the rock hardens there), the two peaks [Pa] and the
+    wall time."""
+    from geodem.labtests.friction import two_point_angle
+
+    t0 = time.perf_counter()
+    r = _run(_triaxial_workflow(spec, el), folder, spec.backend)
+    peaks = list(r.get("peak_strengths") or [None, None]) + [None, None]
+    p0, pc = peaks[0], peaks[1]
+    if p0 is None:
+        raise RuntimeError(f"the friction test in {folder} gave no unconfined peak")
+    phi = math.inf if pc is None else two_point_angle(float(p0), float(pc),
+                                                       friction_sigma3(spec))
+    return {"phi": phi, "peak_0": float(p0), "peak_c": None if pc is None else float(pc),
+            "sigma3": friction_sigma3(spec), "wall_time_s": time.perf_counter() - t0}
+
+
 def brazilian_check(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
     """The Brazilian disc test with element parameters ``el`` (disc of ``spec.disc_diameter``,
     as workflows/brazilian.yaml): its tensile strength, that over the direct-tension Tu
@@ -391,107 +571,125 @@ def brazilian_check(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
             "stopped_by": r.get("stopped_by"), "wall_time_s": time.perf_counter() - t0}
 
 
-def _score(measured, targets, tol, reachable):
+def _score(measured, targets, tol, reachable, keys=KEYS):
+    """Largest error over tolerance of ``keys`` (nu and phi absolute, the others relative),
+    leaving out the targets flagged out of reach; a phi not measured (or not peaked) counts
+    :data:`PHI_MISSING`, also when phi is out of reach."""
     worst = 0.0
-    for k in KEYS:
-        if not reachable.get(k, True):
+    for k in keys:
+        if k == "phi":  # out of reach, still only a sample whose confined stage peaked counts
+            v = measured.get("phi")
+            e = PHI_MISSING * tol[k] if v is None or not math.isfinite(v) else \
+                (abs(v - targets[k]) if reachable.get(k, True) else 0.0)
+        elif not reachable.get(k, True):
             continue
-        e = abs(measured[k] - targets[k]) if k == "nu" else abs(measured[k] / targets[k] - 1)
+        elif k == "nu":
+            e = abs(measured[k] - targets[k])
+        else:
+            e = abs(measured[k] / targets[k] - 1)
         worst = max(worst, e / tol[k])
     return worst
 
 
 def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None = None,
-              measure_fn=None) -> dict:
+              measure_fn=None, friction_fn=None) -> dict:
     """Calibrate (see module docstring); writes ``summary.json``, ``calibrated.yaml``
     (the material block), ``history.csv``, ``convergence.png``, ``iterations/NN/`` and
     ``brazilian/`` (the check of the result, summary key ``brazilian``) into ``out_dir``.
     ``progress(i, record)`` is called after each iteration; ``measure_fn(spec, element,
-    folder)`` replaces :func:`measure` (tests use a synthetic response, and then the Brazilian
-    check and the reachable-region check are skipped). Raises :class:`UnreachableTarget`
-    before the first run when the targets lie outside the charted region and
-    ``spec.check_reach`` is on. Returns the summary."""
+    folder)`` replaces :func:`measure` and ``friction_fn`` (same arguments)
+    :func:`measure_friction` (tests use synthetic responses; with ``measure_fn`` the Brazilian
+    check and the reachable-region check are skipped, and so is the friction angle unless
+    ``friction_fn`` is given too). Raises :class:`UnreachableTarget` before the first run
+    when the targets lie outside the charted region and ``spec.check_reach`` is on. Returns
+    the summary."""
     if measure_fn is None and spec.check_reach:
         check_reachable(spec)  # before any folder is written
+    synthetic = measure_fn is not None
     measure_fn = measure if measure_fn is None else measure_fn
+    use_friction = spec.friction and (not synthetic or friction_fn is not None)
+    friction_fn = friction_fn or measure_friction
+    keys = KEYS + (("phi",) if use_friction else ())
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     tg = {k: float(spec.targets[k]) for k in ("E", "nu", "Tu", "Cu", "mu_i", "rho")}
+    tg["phi"] = friction_angle(tg["mu_i"])
     y_t = _outputs(tg)
     tol = spec.tolerances
     el = dict(start) if start else prior_guess(spec)
-    mu = el["mu"]
     u = to_unknowns(el)
     u[1] = float(np.clip(u[1], *S_RANGE))
     u[3] = float(np.clip(u[3], *np.log(RHO_RANGE)))
+    u[4] = float(np.clip(u[4], *np.log(MU_RANGE))) if use_friction else u[4]
     history = []
-    reachable = {k: True for k in KEYS}
+    reachable = {k: True for k in keys}
     notes = []
     us, ys = [], []
     for it in range(1, int(spec.iterations) + 1):
-        el = dict(from_unknowns(u, mu), **spec.structure)
-        m = measure_fn(spec, el, out / "iterations" / f"{it:02d}")
+        el = dict(from_unknowns(u), **spec.structure)
+        folder = out / "iterations" / f"{it:02d}"
+        m = dict(measure_fn(spec, el, folder))
+        friction = None
+        if use_friction and _score(m, tg, tol, reachable) <= FRICTION_GATE:
+            friction = friction_fn(spec, el, folder / "triaxial")
+            m["phi"] = friction["phi"]
+            m["wall_time_s"] = m["wall_time_s"] + friction["wall_time_s"]
         y = _outputs(m)
         rel = {k: (m[k] - tg[k]) / tg[k] for k in KEYS}
-        rec = {"iteration": it, "element": el, "measured": {k: m[k] for k in KEYS},
+        rec = {"iteration": it, "element": el,
+               "measured": {k: m.get(k) for k in keys},
                "rel_errors": rel, "nu_abs_error": m["nu"] - tg["nu"],
                "wall_time_s": m["wall_time_s"]}
+        if use_friction:
+            phi = m.get("phi")
+            rec["phi_abs_error"] = (phi - tg["phi"] if phi is not None and math.isfinite(phi)
+                                    else None)
+            rec["friction_test"] = friction
         us.append(u.copy())
         ys.append(y)
-        rec["score"] = _score(m, tg, tol, reachable)
+        rec["score"] = _score(rec["measured"], tg, tol, reachable, keys)
         history.append(rec)
         if progress:
             progress(it, rec)
         if rec["score"] <= 1.0:
             break
-        u, unreachable = next_unknowns(us, ys, y_t, spec.dim, spec.prefer)
+        u, unreachable = next_unknowns(us, ys, y_t, spec.dim, spec.prefer, use_friction)
         for key in unreachable:
             reachable[key] = False
-        if _score(m, tg, tol, reachable) <= 1.0:  # what is left to match already is
+        if _score(rec["measured"], tg, tol, reachable, keys) <= 1.0:  # what is left is met
             break
-        scores = [_score(r["measured"], tg, tol, reachable) for r in history]
+        scores = [_score(r["measured"], tg, tol, reachable, keys) for r in history]
         if it - int(np.argmin(scores)) - 1 >= STALL:
             notes.append(f"stopped at iteration {it}: no better than iteration "
                          f"{int(np.argmin(scores)) + 1} for {STALL} iterations")
             break
     for rec in history:  # judged on what is reachable
-        rec["score"] = _score(rec["measured"], tg, tol, reachable)
+        rec["score"] = _score(rec["measured"], tg, tol, reachable, keys)
     best = min(history, key=lambda r: r["score"])
     # a target flagged out of reach on the way but met by the best iteration is reachable
-    met = {k for k in KEYS if not reachable[k] and _score(best["measured"], tg, tol,
-                                                        {j: j == k for j in KEYS}) <= 1.0}
+    met = {k for k in keys if not reachable[k] and _score(best["measured"], tg, tol,
+                                                        {j: j == k for j in keys},
+                                                        keys) <= 1.0}
     if met:
         for k in met:
             reachable[k] = True
         for rec in history:
-            rec["score"] = _score(rec["measured"], tg, tol, reachable)
+            rec["score"] = _score(rec["measured"], tg, tol, reachable, keys)
         best = min(history, key=lambda r: r["score"])
-    if not reachable["nu"]:
-        notes.append(f"nu = {tg['nu']:g} is beyond this packing: with ks / kn at its bound "
-                     f"({best['element']['ks_per_d'] / best['element']['kn_per_d']:.3g}) it "
-                     f"measures nu = {best['measured']['nu']:.3g}; E, Tu and Cu are matched")
-    if not (reachable["Tu"] and reachable["Cu"]):
-        other = "Tu" if spec.prefer == "Cu" else "Cu"
-        el_b = best["element"]
-        rho_b = el_b["fs0_per_d2"] / (el_b["kn_per_d"] * el_b["xb_per_d"])
-        notes.append(f"Cu / Tu = {tg['Cu'] / tg['Tu']:.3g} is beyond what the bond law gives "
-                     f"this packing: with the bonds' shear strength at "
-                     f"{rho_b:.3g} x the tensile (search bound {RHO_RANGE[1]:g}) it measures "
-                     f"Cu / Tu = {best['measured']['Cu'] / best['measured']['Tu']:.3g}. "
-                     f"{spec.prefer} is matched (prefer = {spec.prefer}), {other} is what the "
-                     "packing gives with it; more shear strength does not help: failure is by "
-                     "tensile bond breakage (PHYSICS.md section 2, 'random packings')")
+    notes += _unreachable_notes(spec, tg, best, reachable)
     brazilian = None
-    if measure_fn is measure:  # the synthetic responses of the tests have no disc
+    if not synthetic:  # the synthetic responses of the tests have no disc
         brazilian = brazilian_check(spec, best["element"], out / "brazilian")
     wall = time.perf_counter() - t0
     summary = {
         "material": spec.name, "dim": spec.dim,
-        "targets": {k: tg[k] for k in KEYS},
+        "targets": {k: tg[k] for k in keys},
         "measured": best["measured"],
         "rel_errors": best["rel_errors"],
-        "abs_errors": {k: best["measured"][k] - tg[k] for k in KEYS},
+        "abs_errors": {k: (None if best["measured"].get(k) is None
+                           or not math.isfinite(best["measured"][k])
+                           else best["measured"][k] - tg[k]) for k in keys},
         "tolerances": tol,
         "converged": best["score"] <= 1.0,
         "best_iteration": best["iteration"],
@@ -500,15 +698,18 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         "element": best["element"],
         "reachable": reachable,
         "brazilian": brazilian,
+        "friction_test": best.get("friction_test"),
         "notes": notes,
         "specimen": {"d_mean": spec.d_mean, "ucs_size": list(spec.ucs_size),
                      **spec.structure,
                      "disc_diameter": spec.disc_diameter, "distri_rate": spec.distri_rate,
                      "seed": spec.seed, "strain_rate": spec.strain_rate,
-                     "max_strain": spec.max_strain, "tensile_test": "direct_tension"},
+                     "max_strain": spec.max_strain, "tensile_test": "direct_tension",
+                     "friction_test": ({"kind": "triaxial", "sigma3_over_Cu":
+                                        FRICTION_CONFINEMENT} if use_friction else None)},
         "history": history,
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_float))
     _write_history_csv(out / "history.csv", history)
     (out / "calibrated.yaml").write_text(yaml.safe_dump(calibration_block(summary),
                                                         sort_keys=False))
@@ -520,12 +721,46 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
     return summary
 
 
+def _json_float(v):
+    return None if isinstance(v, float) and not math.isfinite(v) else str(v)
+
+
+def _unreachable_notes(spec, tg, best, reachable) -> list:
+    """One sentence per target found out of reach: what the packing gives instead."""
+    notes = []
+    el_b = best["element"]
+    if not reachable["nu"]:
+        notes.append(f"nu = {tg['nu']:g} is beyond this packing: with ks / kn at its bound "
+                     f"({el_b['ks_per_d'] / el_b['kn_per_d']:.3g}) it "
+                     f"measures nu = {best['measured']['nu']:.3g}; E, Tu and Cu are matched")
+    if not (reachable["Tu"] and reachable["Cu"]):
+        other = "Tu" if spec.prefer == "Cu" else "Cu"
+        rho_b = el_b["fs0_per_d2"] / (el_b["kn_per_d"] * el_b["xb_per_d"])
+        notes.append(f"Cu / Tu = {tg['Cu'] / tg['Tu']:.3g} is beyond what the bond law gives "
+                     f"this packing: with the bonds' shear strength at "
+                     f"{rho_b:.3g} x the tensile (search bound {RHO_RANGE[1]:g}) it measures "
+                     f"Cu / Tu = {best['measured']['Cu'] / best['measured']['Tu']:.3g}. "
+                     f"{spec.prefer} is matched (prefer = {spec.prefer}), {other} is what the "
+                     "packing gives with it; more shear strength does not help: failure is by "
+                     "tensile bond breakage (PHYSICS.md section 2, 'random packings')")
+    if not reachable.get("phi", True):
+        phi = best["measured"].get("phi")
+        got = "no confined peak" if phi is None or not math.isfinite(phi) else \
+            f"phi = {phi:.1f} deg"
+        notes.append(f"phi = {tg['phi']:.1f} deg (mu_i {tg['mu_i']:g}) is beyond what the "
+                     f"contact friction gives this packing: at mu = {el_b['mu']:.3g} it "
+                     f"measures {got}, and with more friction the confined stage hardens "
+                     f"instead of peaking (or mu is at its bound {MU_RANGE[1]:g})")
+    return notes
+
+
 def calibration_block(summary: dict) -> dict:
     """The ``calibrated: {<dim>d: ...}`` entry of a material file."""
     block = {
         "element": {k: (v if isinstance(v, str) else float(v))
                     for k, v in summary["element"].items()},
-        "measured": {k: float(v) for k, v in summary["measured"].items()},
+        "measured": {k: (None if v is None or not math.isfinite(v) else float(v))
+                     for k, v in summary["measured"].items()},
         "rel_errors": {k: round(float(v), 5) for k, v in summary["rel_errors"].items()},
         "converged": bool(summary["converged"]),
         "iterations": int(summary["iterations"]),
@@ -539,6 +774,13 @@ def calibration_block(summary: dict) -> dict:
                               "crack_start_offset": (None if b["crack_start_offset"] is None
                                                      else round(float(b["crack_start_offset"]),
                                                                 3))}
+    f = summary.get("friction_test")
+    if f:
+        block["friction_test"] = {"phi": (None if not math.isfinite(f["phi"])
+                                          else round(float(f["phi"]), 3)),
+                                  "target_phi": round(float(summary["targets"]["phi"]), 3),
+                                  "sigma3": float(f["sigma3"]), "peak_0": float(f["peak_0"]),
+                                  "peak_c": None if f["peak_c"] is None else float(f["peak_c"])}
     return {f"{summary['dim']}d": block}
 
 
@@ -571,14 +813,15 @@ def save_calibration(path, summary: dict) -> None:
 
 def _write_history_csv(path, history):
     cols = ["iteration", "score"] + [f"{k}_measured" for k in KEYS] + \
-        [f"{k}_rel_error" for k in KEYS] + ["kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2",
-                                             "mu", "wall_time_s"]
+        [f"{k}_rel_error" for k in KEYS] + ["phi_measured", "kn_per_d", "ks_per_d", "xb_per_d",
+                                             "fs0_per_d2", "mu", "wall_time_s"]
     lines = [",".join(cols)]
     for r in history:
+        phi = r["measured"].get("phi")
         row = [r["iteration"], r["score"]] + [r["measured"][k] for k in KEYS] + \
-            [r["rel_errors"][k] for k in KEYS] + [r["element"][k] for k in
-                                                  ("kn_per_d", "ks_per_d", "xb_per_d",
-                                                   "fs0_per_d2", "mu")] + [r["wall_time_s"]]
+            [r["rel_errors"][k] for k in KEYS] + ["" if phi is None else phi] + \
+            [r["element"][k] for k in ("kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2",
+                                       "mu")] + [r["wall_time_s"]]
         lines.append(",".join(f"{v:.6g}" if isinstance(v, float) else str(v) for v in row))
     Path(path).write_text("\n".join(lines) + "\n")
 
@@ -599,6 +842,11 @@ def _plot(path, history, tol, name):
             e = [abs(r["rel_errors"][k]) / tol[k] for r in history]
             lab = f"|{k} error| / {tol[k]:.0%}"
         ax.semilogy(it, np.maximum(e, 1e-3), "o-", color=c, label=lab)
+    runs = [(r["iteration"], abs(r["phi_abs_error"]) / tol["phi"]) for r in history
+            if r.get("phi_abs_error") is not None]
+    if runs:  # the friction angle, where the triaxial test ran
+        ax.semilogy([a for a, _ in runs], [max(e, 1e-3) for _, e in runs], "s-", color="C4",
+                    label=f"|phi - target| / {tol['phi']:g} deg")
     ax.axhline(1.0, color="k", ls="--", lw=0.8, label="tolerance")
     ax.set_xlabel("iteration")
     ax.set_ylabel("error / tolerance")

@@ -29,7 +29,7 @@ def spec(**kw):
 
 def test_unknowns_round_trip():
     el = C.prior_guess(spec())
-    back = C.from_unknowns(C.to_unknowns(el), el["mu"])
+    back = C.from_unknowns(C.to_unknowns(el))
     for k in el:
         assert back[k] == pytest.approx(el[k], rel=1e-12)
 
@@ -139,3 +139,66 @@ def test_converges_when_nu_depends_on_the_shear_strength_too(tmp_path, nu, Cu, T
     assert abs(out["abs_errors"]["nu"]) <= 0.03
     for k in ("E", "Cu", "Tu"):
         assert abs(out["rel_errors"][k]) <= 0.05
+
+
+def frictional(spec_, el, folder):
+    """The coupled packing with Cu rising with the contact friction."""
+    m = coupled(spec_, el, folder)
+    return dict(m, Cu=m["Cu"] * (el["mu"] / 0.25) ** 0.3)
+
+
+def friction_test(spec_, el, folder, hardens_above=None):
+    """A made-up two-stage triaxial: phi rises with ln mu (about 28 deg per unit, the prior
+    says 32) and a little with ks/kn; above ``hardens_above`` the confined stage has no peak."""
+    mu, s = el["mu"], el["ks_per_d"] / el["kn_per_d"]
+    if hardens_above is not None and mu > hardens_above:
+        phi = math.inf
+    else:
+        phi = 24.0 + 28.0 * math.log(mu / 0.25) + 4.0 * (s - 0.4)
+    return {"phi": phi, "peak_0": 1.0, "peak_c": None if math.isinf(phi) else 2.0,
+            "sigma3": 0.1, "wall_time_s": 0.0}
+
+
+@pytest.mark.parametrize("mu_i", [0.47, 0.7, 0.84])  # stiff clay, sandstone, marble: 25-40 deg
+def test_the_friction_angle_is_matched_by_the_contact_friction(tmp_path, mu_i):
+    calls = []
+
+    def counted(spec_, el, folder):
+        calls.append(folder)
+        return friction_test(spec_, el, folder)
+
+    out = C.calibrate(spec(mu_i=mu_i), tmp_path, measure_fn=frictional, friction_fn=counted)
+    phi_t = math.degrees(math.atan(mu_i))
+    assert out["converged"] and out["iterations"] <= 8
+    assert out["targets"]["phi"] == pytest.approx(phi_t)
+    assert abs(out["abs_errors"]["phi"]) <= 2.0
+    assert abs(friction_test(None, out["element"], None)["phi"] - phi_t) <= 2.0
+    for k in ("E", "Cu", "Tu"):
+        assert abs(out["rel_errors"][k]) <= 0.05
+    # the triaxial runs only once the four are close: never more often than the iterations
+    assert 1 <= len(calls) <= out["iterations"]
+    block = C.calibration_block(out)["2d"]
+    assert block["measured"]["phi"] == pytest.approx(out["measured"]["phi"])
+    assert block["friction_test"]["target_phi"] == pytest.approx(phi_t, abs=1e-3)
+
+
+def test_a_friction_angle_the_packing_cannot_peak_at_is_reported(tmp_path):
+    # granite's 50 deg needs mu ~ 0.6 here, and above mu 0.45 the confined stage hardens
+    def hardening(spec_, el, folder):
+        return friction_test(spec_, el, folder, hardens_above=0.45)
+
+    sp = C.CalibrationSpec(targets=dict(TARGETS, mu_i=1.19), name="synthetic", iterations=10)
+    out = C.calibrate(sp, tmp_path, measure_fn=frictional, friction_fn=hardening)
+    assert out["reachable"]["phi"] is False
+    assert any("phi = 50.0 deg" in n for n in out["notes"])
+    assert out["element"]["mu"] <= 0.45
+    for k in ("E", "Cu", "Tu"):  # the other four still match
+        assert abs(out["rel_errors"][k]) <= 0.05
+    assert abs(out["abs_errors"]["nu"]) <= 0.03
+
+
+def test_without_friction_the_lattice_mu_is_kept(tmp_path):
+    sp = C.CalibrationSpec(targets=TARGETS, name="synthetic", friction=False)
+    out = C.calibrate(sp, tmp_path, measure_fn=frictional, friction_fn=friction_test)
+    assert "phi" not in out["targets"]
+    assert out["element"]["mu"] == pytest.approx(C.prior_guess(sp)["mu"])
