@@ -584,7 +584,7 @@ def calibrate_cmd(
     dim: Annotated[int, typer.Option("--dim", min=2, max=3, help="Dimension of the "
                                                                  "specimens.")] = 2,
     iterations: Annotated[int, typer.Option("--iterations", min=1, max=20,
-                                            help="Largest number of iterations.")] = 6,
+                                            help="Largest number of iterations.")] = 8,
     d_mean: Annotated[Optional[float], typer.Option(
         "--d-mean", min=1e-6, help="Element diameter of the specimens [m] (default 0.005 in "
                                    "2-D, 0.01 in 3-D: about 800 and 2,200 elements).")] = None,

@@ -149,12 +149,15 @@ def frictional(spec_, el, folder):
 
 def friction_test(spec_, el, folder, hardens_above=None):
     """A made-up two-stage triaxial: phi rises with ln mu (about 28 deg per unit, the prior
-    says 32) and a little with ks/kn; above ``hardens_above`` the confined stage has no peak."""
+    says 32), a little with ks/kn, and falls as the bonds make the rock stronger (-30 deg per
+    unit of ln Cu, the solver assumes -35); above ``hardens_above`` the confined stage has no
+    peak."""
     mu, s = el["mu"], el["ks_per_d"] / el["kn_per_d"]
+    cu = frictional(spec_, el, folder)["Cu"] / (spec_.targets["Cu"] if spec_ else 75e6)
     if hardens_above is not None and mu > hardens_above:
         phi = math.inf
     else:
-        phi = 24.0 + 28.0 * math.log(mu / 0.25) + 4.0 * (s - 0.4)
+        phi = 24.0 + 28.0 * math.log(mu / 0.25) + 4.0 * (s - 0.4) - 30.0 * math.log(cu)
     return {"phi": phi, "peak_0": 1.0, "peak_c": None if math.isinf(phi) else 2.0,
             "sigma3": 0.1, "wall_time_s": 0.0}
 
