@@ -2,8 +2,9 @@
 
 The calibration's two exact scalings (module :mod:`geodem.labtests.calibrate`) leave nu and
 Cu / Tu functions of the shape variables only: ``s = ks / kn`` and ``rho_s = fs0 / (kn xb)``
-(per size), at a fixed micro-structure and friction ``mu`` (the charts use the library
-sandstone's mu 0.25; more friction raises Cu, so for another mu the bounds are approximate).
+(per size), at a fixed micro-structure and friction ``mu`` (the charts use
+:data:`CHARTED_MU`, 0.25; more friction raises Cu, so for another mu the bounds are
+approximate).
 So the region is a map of that
 plane: :func:`reach_study` measures nu and Cu / Tu (UCS and direct tension of the calibration
 specimen, as :func:`geodem.labtests.calibrate.measure`) on a grid of ``(s, rho_s)`` and writes
@@ -38,15 +39,20 @@ CHARTED_STRUCTURE = {"packing": "isotropic"}
 
 
 def _base_element(dim: int) -> dict:
-    """Levels (kn, F_t, mu) of the library sandstone's calibration: the region does not depend
+    """Levels (kn, F_t) of the library sandstone's calibration: the region does not depend
     on them (exact scalings), only on the shape variables."""
     from geodem.materials_library import load_material
 
     return dict(load_material("sandstone").calibrated[f"{dim}d"]["element"])
 
 
+#: element friction the charts are measured at: the lattice conversion of the sandstone's
+#: mu_i 0.7 (calibrations with the friction angle reach 0.26-0.46 in the library)
+CHARTED_MU = 0.25481189610327715
+
+
 def reach_study(dim: int, out_dir, s_values=None, rho_values=None, backend=None,
-                progress=None) -> dict:
+                progress=None, mu: float = CHARTED_MU) -> dict:
     """Measure nu and Cu / Tu over the ``(s, rho_s)`` grid on the calibration specimen of
     ``dim`` (isotropic packing, seed 0). A point whose specimen cannot be measured (a
     mechanism near ``s = 0``: no E / nu fit, or a fitted nu beyond :data:`NU_LIMIT`) is kept
@@ -59,7 +65,7 @@ def reach_study(dim: int, out_dir, s_values=None, rho_values=None, backend=None,
     rho_values = DEFAULT_GRID[dim][1] if rho_values is None else rho_values
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    base = _base_element(dim)
+    base = dict(_base_element(dim), mu=float(mu))
     targets = load_material("sandstone").values()
     size = (0.1, 0.1, 0.2) if dim == 3 else (0.1, 0.2)
     spec = CalibrationSpec(targets=targets, name="reach", dim=dim,
