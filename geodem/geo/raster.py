@@ -14,8 +14,9 @@ Nodata
     Cells equal to the nodata value (the file's, and ``nodata=``: an extra value, compared in the
     raster's own data type, e.g. float32), masked by the file, or not finite are filled before
     resampling by inverse-distance weighting of the ``k = 8`` nearest valid cells on the rim of
-    the holes: ``z = sum(w_i z_i) / sum(w_i)``, ``w_i = 1 / d_i^2`` (``d`` in
-    metres on the source grid). A single hole in a plane is filled exactly (the 8 neighbours pair
+    the holes: ``z = sum(w_i z_i) / sum(w_i)``, ``w_i = 1 / d_i^2`` (``d`` in metres on the
+    source grid; a geographic grid's degrees are converted at its central latitude with the
+    Earth's mean radius). A single hole in a plane is filled exactly (the 8 neighbours pair
     up symmetrically). ``Terrain.nodata_filled`` counts the filled source cells (in the window
     read: the region plus a margin of a few cells). All-nodata, or more than
     ``max_nodata_fraction`` (default 0.5) nodata, -> :class:`GeometryError`.
@@ -34,9 +35,12 @@ Clipping
     footprint (pixel edges), else :class:`GeometryError`. Without a region the whole raster is used
     (after reprojection, or for a raster not stored north-up (south-up, east-to-west, turned by
     90 or 180 degrees): the largest axis-aligned rectangle inside the footprint, found from its
-    densified edges, told apart by their coordinates). Without resampling the cells whose centres span the region are
-    kept (one cell beyond each side at most); with resampling the new grid starts at the region's
-    west and north edges.
+    densified edges, told apart by their coordinates). Without resampling the cells whose
+    centres span the region are kept (one cell beyond each side at most); with resampling the
+    new grid starts at the region's west and north edges. With ``like=`` the region is that
+    terrain's ``extent`` (not its grid, which may overhang it by under a cell: those cells
+    are edge-filled), so a layer raster on the elevation raster's own grid, or on a larger
+    one, is accepted in any CRS.
 Local origin
     ``origin="auto"``: the region's (or grid's) lower-left corner ``(x0, y0)``, elevations kept
     (``z0 = 0``); ``None``: global coordinates; or ``(x0, y0[, z0])``. Local coordinates are
@@ -476,6 +480,28 @@ def _inner_box(foot, n):
             float(edges[east][:, 0].min()), float(edges[north][:, 1].min()))
 
 
+#: the Earth's mean radius [m] (IUGG): metres per radian on a geographic grid
+EARTH_RADIUS = 6371008.8
+
+
+def _cell_metres(tr, crs, shape):
+    """The source cells' ground size ``(dx, dy)`` [m] for the nodata fill: a geographic grid's
+    degrees are ``R pi/180`` m of latitude and ``R pi/180 cos(lat)`` m of longitude at the
+    window's central latitude (``R`` = :data:`EARTH_RADIUS`); a projected grid's units times
+    their length in metres (feet: 0.3048)."""
+    sdx, sdy = math.hypot(tr.a, tr.d), math.hypot(tr.b, tr.e)
+    if crs.is_geographic:
+        ny, nx = shape
+        lat = (tr @ (0.5 * nx, 0.5 * ny))[1]
+        k = EARTH_RADIUS * math.pi / 180.0
+        return sdx * k * max(math.cos(math.radians(lat)), 1e-6), sdy * k
+    try:
+        f = float(crs.linear_units_factor[1])
+    except Exception:  # noqa: BLE001 - no linear unit known: take the units as metres
+        f = 1.0
+    return sdx * f, sdy * f
+
+
 def _fmt_box(b):
     return "x {:.10g} .. {:.10g}, y {:.10g} .. {:.10g}".format(
         *(round(float(v), 6) for v in (b[0], b[2], b[1], b[3])))
@@ -609,7 +635,10 @@ def read_elevation(path, *, crs=None, target_crs=None, resolution=None, region=N
         fbox = (foot[:, 0].min(), foot[:, 1].min(), foot[:, 0].max(), foot[:, 1].max())
         # ---- region in the target CRS
         if like is not None:
-            lb = like.grid_bounds
+            # the region the terrain stands for, not its grid: a grid resampled from another
+            # CRS overhangs its region (and its raster's footprint) by under one cell, whose
+            # outer cells are edge-filled; a raster on the same grid covers just the region
+            lb = like.extent
             reg = (lb[0] + like.x0, lb[1] + like.y0, lb[2] + like.x0, lb[3] + like.y0)
             given = True
         elif region is not None:
@@ -731,8 +760,7 @@ def read_elevation(path, *, crs=None, target_crs=None, resolution=None, region=N
                             f"({100.0 * nbad / data.size:.1f} %) are nodata ({nd_txt}); at most "
                             f"{100 * max_nodata_fraction:.0f} % are filled (max_nodata_fraction)"
                             "; choose a region inside the valid data")
-    sdx = math.hypot(w_tr.a, w_tr.d)
-    sdy = math.hypot(w_tr.b, w_tr.e)
+    sdx, sdy = _cell_metres(w_tr, s_crs, data.shape)
     filled, fill_dist = fill_nodata(data, invalid, sdx, sdy)
     # ---- resample
     edge = 0

@@ -181,7 +181,7 @@ def _workflow_error(exc, field):
     for old, new in _HINTS:
         msg = msg.replace(old, new)
     if field != "raster" and "the requested region" in msg:
-        msg = msg.replace("the requested region", "the elevation raster's grid")
+        msg = msg.replace("the requested region", "the elevation raster's area")
     err = GeometryError(msg)
     err.field = getattr(exc, "field", field) if field == "raster" else field
     return err
@@ -798,12 +798,12 @@ class LandslideStep(StepBase):
             s.eta[:] = eta
 
         ctx.decree(trigger, "slide")
+        across = "cut" if self.slip_bond_rate == 0 else f"at rate {self.slip_bond_rate:g}"
+        in_slide = "cut" if self.strength_factor == 0 else f"x {self.strength_factor:g}"
+        fric = self.slide_friction if self.slide_friction is not None else "kept"
         ctx.log(f"trigger at t = {ctx.state.time:.4g} s: {len(pairs)} bonds across the sliding "
-                f"surface {'cut' if self.slip_bond_rate == 0 else f'at rate {self.slip_bond_rate:g}'}"
-                f", {len(inner_pairs)} slide bonds "
-                f"{'cut' if self.strength_factor == 0 else f'x {self.strength_factor:g}'}, "
-                f"slide friction {self.slide_friction if self.slide_friction is not None else 'kept'}"
-                f" ({cut} bonds cut in all)")
+                f"surface {across}, {len(inner_pairs)} slide bonds {in_slide}, "
+                f"slide friction {fric} ({cut} bonds cut in all)")
 
     def _sample(self, ctx, slide, x0, t0, d, path):
         s = ctx.state
