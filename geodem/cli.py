@@ -565,12 +565,13 @@ def _phi_text(rec) -> str:
 
 
 @app.command("calibrate", help=(
-    "Calibrate a library material: find element parameters whose virtual UCS, direct "
-    "tension and triaxial tests give its E, nu, UCS (Cu), tensile strength (Tu) and friction "
-    "angle atan(mu_i); the Brazilian disc is run once with the result as a check.\n\n"
+    "Calibrate a library material: find element parameters whose virtual UCS and direct "
+    "tension tests give its E, nu, UCS (Cu) and tensile strength (Tu) (with --friction also "
+    "the friction angle atan(mu_i), from a triaxial test); the Brazilian disc is run once "
+    "with the result as a check.\n\n"
     "Each iteration builds the same specimen, runs the UCS and direct-tension workflows on it "
-    "and, once those four are close, a two-stage triaxial test (sigma3 = 0 and 0.133 Cu) for "
-    "the friction angle (kept under DIR/iterations/NN/), and takes a step with the model's "
+    "(and with --friction, once those four are close, a two-stage triaxial test at sigma3 = "
+    "0 and 0.133 Cu), kept under DIR/iterations/NN/, and takes a step with the model's "
     "exact scalings. Writes "
     "summary.json (targets, measured, rel_errors, iterations, wall_time_s), history.csv, "
     "calibrated.yaml and convergence.png into -o DIR; --save also stores the result in the "
@@ -606,10 +607,11 @@ def calibrate_cmd(
                                                         "outside the charted reachable "
                                                         "region (then E, nu and --prefer "
                                                         "are matched).")] = False,
-    no_friction: Annotated[bool, typer.Option(
-        "--no-friction", help="Keep the contact friction at the lattice value from mu_i "
-                              "instead of matching the friction angle atan(mu_i) by a "
-                              "triaxial test.")] = False,
+    friction: Annotated[bool, typer.Option(
+        "--friction", help="Also match the friction angle atan(mu_i) by the contact "
+                           "friction, with a two-stage triaxial test per iteration (without "
+                           "it mu stays at the lattice value from mu_i; docs/calibration.md, "
+                           "'Friction angle').")] = False,
     backend: Annotated[Optional[str], typer.Option(
         "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
 ):
@@ -637,7 +639,7 @@ def calibrate_cmd(
         spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim, d_mean=d_mean,
                                ucs_size=size, seed=seed, iterations=iterations,
                                backend=backend, prefer=prefer, structure=structure,
-                               check_reach=not force, friction=not no_friction)
+                               check_reach=not force, friction=friction)
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull: {exc}", USER_ERROR)
     if not force:

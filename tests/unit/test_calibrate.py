@@ -170,7 +170,8 @@ def test_the_friction_angle_is_matched_by_the_contact_friction(tmp_path, mu_i):
         calls.append(folder)
         return friction_test(spec_, el, folder)
 
-    out = C.calibrate(spec(mu_i=mu_i), tmp_path, measure_fn=frictional, friction_fn=counted)
+    sp = C.CalibrationSpec(targets=dict(TARGETS, mu_i=mu_i), name="synthetic", friction=True)
+    out = C.calibrate(sp, tmp_path, measure_fn=frictional, friction_fn=counted)
     phi_t = math.degrees(math.atan(mu_i))
     assert out["converged"] and out["iterations"] <= 8
     assert out["targets"]["phi"] == pytest.approx(phi_t)
@@ -190,7 +191,8 @@ def test_a_friction_angle_the_packing_cannot_peak_at_is_reported(tmp_path):
     def hardening(spec_, el, folder):
         return friction_test(spec_, el, folder, hardens_above=0.45)
 
-    sp = C.CalibrationSpec(targets=dict(TARGETS, mu_i=1.19), name="synthetic", iterations=10)
+    sp = C.CalibrationSpec(targets=dict(TARGETS, mu_i=1.19), name="synthetic", iterations=10,
+                           friction=True)
     out = C.calibrate(sp, tmp_path, measure_fn=frictional, friction_fn=hardening)
     assert out["reachable"]["phi"] is False
     assert any("phi = 50.0 deg" in n for n in out["notes"])
@@ -201,7 +203,7 @@ def test_a_friction_angle_the_packing_cannot_peak_at_is_reported(tmp_path):
 
 
 def test_without_friction_the_lattice_mu_is_kept(tmp_path):
-    sp = C.CalibrationSpec(targets=TARGETS, name="synthetic", friction=False)
+    sp = C.CalibrationSpec(targets=TARGETS, name="synthetic")  # friction is opt-in
     out = C.calibrate(sp, tmp_path, measure_fn=frictional, friction_fn=friction_test)
     assert "phi" not in out["targets"]
     assert out["element"]["mu"] == pytest.approx(C.prior_guess(sp)["mu"])
