@@ -183,10 +183,50 @@ class State:
             kw[f.name] = val
         return State(**kw)
 
+    def __repr__(self) -> str:
+        """One short line whatever the size (the generated dataclass repr printed every
+        array): dim, elements, contacts and bonds, bounding box, groups, step, time and the
+        arrays grouped by shape and dtype."""
+        try:
+            head = [f"dim={self.dim}", f"n={self.n}", f"width={self.width}"]
+            if self.nbr.size:
+                valid = self.nbr >= 0
+                head.append(f"contacts={int(valid.sum()) // 2}")
+                head.append(f"bonds={int((valid & (self.cstate == BONDED)).sum()) // 2}")
+            if self.n and self.x.size:
+                lo, hi = self.x.min(axis=0), self.x.max(axis=0)
+                head.append("box=[" + ", ".join(f"{a:.4g}..{b:.4g}" for a, b in zip(lo, hi))
+                            + "] m")
+            head.append(f"groups=[{_clip(', '.join(self.groups), 50)}]")
+            head.append(f"step={self.step}, time={self.time:.4g} s, dt={self.dt:.4g} s")
+            if self.rotation:
+                head.append("rotation")
+            return f"State({', '.join(head)}; arrays {array_summary(self.arrays())})"
+        except Exception as exc:  # noqa: BLE001 - a repr must not raise on a broken state
+            return f"State(<unprintable: {type(exc).__name__}: {_clip(str(exc), 80)}>)"
+
     def group_mask(self, name: str) -> np.ndarray:
         if name not in self.groups:
             raise KeyError(f"unknown group {name!r}; groups: {sorted(self.groups)}")
         return self.group == self.groups[name]
+
+
+def _clip(text: str, n: int) -> str:
+    return text if len(text) <= n else text[:n - 3] + "..."
+
+
+def array_summary(arrays: dict, limit: int = 240) -> str:
+    """``"x,v,a (360, 3) f8; m,eta (360,) f8; ..."``: the names of ``arrays`` grouped by shape
+    and dtype (numpy's short dtype code), in first-seen order, at most ``limit`` characters."""
+    groups: dict = {}
+    for name, a in arrays.items():
+        if a is None:
+            continue
+        a = np.asarray(a)
+        key = (tuple(a.shape), a.dtype.str.lstrip("<>|="))
+        groups.setdefault(key, []).append(name)
+    text = "; ".join(f"{','.join(names)} {shape} {dt}" for (shape, dt), names in groups.items())
+    return _clip(text, limit)
 
 
 def _prop(col: int, name: str):

@@ -132,6 +132,26 @@ class Terrain:
             self.extent = self.grid_bounds
         self.extent = tuple(float(v) for v in self.extent)
 
+    def __repr__(self) -> str:
+        """One short line whatever the grid size (the generated dataclass repr printed every
+        elevation): grid, cell size, CRS, local extent, elevation range, origin, source."""
+        try:
+            crs = f"EPSG:{self.epsg}" if self.epsg else _crs_label(self.crs)
+            e = self.extent
+            parts = [f"z {self.z.shape} {self.z.dtype.str.lstrip('<>|=')} "
+                     f"{float(self.z.min()):.6g}..{float(self.z.max()):.6g} m",
+                     f"cells {self.dx:.4g} x {self.dy:.4g} m", crs,
+                     f"extent x {e[0]:.6g}..{e[2]:.6g}, y {e[1]:.6g}..{e[3]:.6g} m",
+                     "origin (" + ", ".join(f"{v:.8g}" for v in self.origin) + ")",
+                     f"resampling {self.resampling}"]
+            if self.nodata_filled or self.edge_filled:
+                parts.append(f"filled {self.nodata_filled} nodata + {self.edge_filled} edge")
+            if self.source:
+                parts.append(f"source {_clip_left(str(self.source), 60)!r}")
+            return f"Terrain({', '.join(parts)})"
+        except Exception as exc:  # noqa: BLE001 - a repr must not raise
+            return f"Terrain(<unprintable: {type(exc).__name__}>)"
+
     # ---------------------------------------------------------------- grid geometry
     @property
     def dx(self) -> float:
@@ -299,6 +319,23 @@ class Terrain:
         X, Y = np.meshgrid(xc, yc)
         z = np.broadcast_to(np.asarray(f(X, Y), float), X.shape)
         return cls.from_array(z, dx, dy, west=xmin, south=ymin, crs=crs, origin=(0.0, 0.0, 0.0))
+
+
+def _crs_label(wkt) -> str:
+    """A CRS's name from its WKT (``PROJCRS["WGS 84 / UTM zone 32N", ...``), at most 40
+    characters; ``"no CRS"`` for None."""
+    if not wkt:
+        return "no CRS"
+    import re
+
+    m = re.search(r'^\s*[A-Z]+\["([^"]*)"', str(wkt))
+    name = m.group(1) if m else str(wkt)
+    return name if len(name) <= 40 else name[:37] + "..."
+
+
+def _clip_left(text: str, n: int) -> str:
+    """``text``, or its last ``n - 3`` characters after ``...`` (paths keep their file name)."""
+    return text if len(text) <= n else "..." + text[-(n - 3):]
 
 
 def _wkt(crs):
