@@ -19,7 +19,8 @@
 Backend choice for a run: ``--backend`` > the workflow's ``backend:`` key (``geodem run``) >
 environment variable ``GEODEM_BACKEND`` > ``auto`` (``cupy`` on a usable GPU, else ``numba``).
 User errors (bad option values, unknown or unusable backend, non-empty output folder, invalid
-workflow) print a message on stderr and exit with status 2 -- an invalid workflow as one line per
+workflow, a missing optional extra: the message names the pip install, see geodem.extras) print
+a message on stderr and exit with status 2 -- an invalid workflow as one line per
 problem, ``FILE.yaml:LINE: <field path>: <message>``; other failures exit with status 1.
 ``-v/--verbose`` shows the traceback. See docs/workflows.md.
 """
@@ -68,13 +69,30 @@ def _err() -> Console:
 def _user_error_types():
     from geodem.backends import BackendError
     from geodem.bench import BenchError
+    from geodem.extras import MissingExtra
     from geodem.geo.errors import GeometryError
     from geodem.materials_library import MaterialError
     from geodem.workflow.errors import WorkflowError
 
     # typer.BadParameter: an option checked inside a command's body
     return (BackendError, BenchError, WorkflowError, MaterialError, GeometryError,
-            typer.BadParameter)
+            MissingExtra, typer.BadParameter)
+
+
+def _command_name() -> str:
+    """``geodem <command>`` of the command running (for messages); typer keeps its own copy
+    of click (typer._click) in recent versions."""
+    ctx = None
+    for mod in ("typer._click.globals", "click.globals"):
+        try:
+            ctx = __import__(mod, fromlist=["get_current_context"]).get_current_context(
+                silent=True)
+        except Exception:  # noqa: BLE001 - no such module, or no context
+            ctx = None
+        if ctx is not None:
+            break
+    name = getattr(ctx, "info_name", None)
+    return f"geodem {name}" if name and name != "geodem" else "geodem"
 
 
 def _fail(msg: str, code: int) -> None:
@@ -96,8 +114,13 @@ def _guard(fn):
         except (typer.Exit, typer.Abort, KeyboardInterrupt):
             raise
         except Exception as exc:  # noqa: BLE001 - the one place errors become exit codes
+            from geodem.extras import MissingExtra, missing_extra
             from geodem.workflow.errors import WorkflowError
 
+            if not isinstance(exc, MissingExtra):
+                # an optional package absent (the import deep inside a command): the extra
+                # that installs it, as a user error
+                exc = missing_extra(exc, _command_name()) or exc
             user = isinstance(exc, _user_error_types())
             if _OPTS["verbose"]:
                 traceback.print_exc(file=sys.stderr)

@@ -95,10 +95,10 @@ def _hex(rgb):
 def _load(source):
     if isinstance(source, (str, os.PathLike)):
         name = os.fspath(source)
-        try:
+        from geodem.extras import needs_extra
+
+        with needs_extra("reading images"):
             from PIL import Image
-        except ImportError as exc:  # pragma: no cover - depends on the installation
-            raise ImportError("reading images needs Pillow: pip install pillow") from exc
         if not os.path.exists(name):
             raise GeometryError(f"{name}: no such file")
         try:

@@ -75,12 +75,11 @@ MAX_NODATA_FRACTION = 0.5
 
 
 def _rasterio():
-    try:
+    from geodem.extras import needs_extra
+
+    with needs_extra("reading elevation rasters"):
         import rasterio  # noqa: F401
         import rasterio.warp  # noqa: F401
-    except ImportError as exc:  # pragma: no cover - depends on the installation
-        raise ImportError("reading elevation rasters needs rasterio: pip install rasterio "
-                          "(or pip install 'geodem[geo]')") from exc
     return rasterio
 
 

@@ -279,9 +279,11 @@ class Landslide(ModelBase):
     def _lattice(self):
         """The model's lattice version (fast): geometry, base level, element-count estimate.
         GeometryError with ``.field`` (a field of this model) on bad input."""
+        from geodem.extras import needs_extra
         from geodem.geo import GeometryError, terrain_model
 
-        top, slip = read_terrains(self)
+        with needs_extra("landslide"):  # rasterio: the 'geo' extra
+            top, slip = read_terrains(self)
         self._check_geometry(top)
         try:
             return top, slip, terrain_model(
