@@ -70,14 +70,13 @@ and the ``triaxial`` step.
 
   summary.json gets ``cohesion`` [Pa], ``friction_angle_deg``, ``ucs_fit`` [Pa] (None when no fit
   is possible: fewer than two distinct sigma3, or slope < 1), ``confining_pressures`` [Pa] and
-  ``peak_strengths`` [Pa] (peak sigma1 per test: the first maximum the deviator falls 5 %
-  below, :func:`first_peak`; None for a test that has not peaked: such a test is listed in
-  ``no_peak`` and kept out of the fit). Files:
-  ``triaxial_curves.csv`` (every sample of every test), ``triaxial.json`` (progress and
-  results per test; finished tests are skipped on ``--resume``), ``triaxial_initial.npz``
-  (the state every test starts from), and the pictures ``triaxial_curves.png`` (deviator
-  and volumetric strain vs axial strain), ``mohr_circles.png`` (circles at the peaks and the
-  fitted envelope) and ``triaxial_cracks.png`` (crack map of the last test).
+  ``peak_strengths`` [Pa] (peak sigma1 per test; None for a test that has not peaked,
+  :func:`has_peaked`: such a test is listed in ``no_peak`` and kept out of the fit). Files:
+  ``triaxial_curves.csv`` (every sample of every test), ``triaxial.json`` (progress and results per test; finished tests are skipped
+  on ``--resume``), ``triaxial_initial.npz`` (the state every test starts from), and the
+  pictures ``triaxial_curves.png`` (deviator and volumetric strain vs axial strain),
+  ``mohr_circles.png`` (circles at the peaks and the fitted envelope) and ``triaxial_cracks.png``
+  (crack map of the last test).
 
   **Resume**: everything a test decides happens at absolute time steps on a grid (servo updates
   every n steps from the start of the phase; the phase starts are in ``triaxial.json``) and
@@ -1006,8 +1005,7 @@ class _Run:
             self._target(min(lmax, s + self.n))
         a = np.array(rows, float)
         eps, sig1, dev, lat_sig = a[:, 4], a[:, 5], a[:, 6], a[:, 9]
-        i_peak = first_peak(dev)
-        i = int(np.argmax(dev)) if i_peak is None else i_peak
+        i = int(np.argmax(dev))
         run = np.maximum.accumulate(eps)
         keep = np.concatenate([[True], eps[1:] > run[:-1]])
         E = None
@@ -1016,10 +1014,10 @@ class _Run:
         except ValueError as exc:
             ctx.log(f"sigma3 = {s3:.4g} Pa: modulus not fitted: {exc}")
         ct, cs = self._cracks()
-        peaked = i_peak is not None
+        peaked = has_peaked(reason, dev, i)
         res = {"sigma3": s3, "peaked": peaked,
                "peak_strength": float(sig1[i]) if peaked else None,
-               "max_strength": float(sig1.max()), "peak_deviator": float(dev[i]),
+               "max_strength": float(sig1[i]), "peak_deviator": float(dev[i]),
                "peak_strain": float(eps[i]), "lateral_stress_at_peak": float(lat_sig[i]),
                "E": E, "final_strain": float(eps[-1]), "final_deviator": float(dev[-1]),
                "stopped_by": reason, "samples": len(rows), "cracks_tensile": ct,
@@ -1101,23 +1099,6 @@ class _Run:
 
 
 SOFTENED = 0.95  # a stage stopped by max_strain has peaked if q fell below this x its maximum
-
-
-def first_peak(dev) -> int | None:
-    """Index of a stage's peak: the first running maximum of the deviator ``dev`` after which
-    it falls below ``SOFTENED`` x that maximum; ``None`` when it never does (still hardening,
-    or a plateau). The failure of the specimen is that first peak: a confined 2-D stage that
-    softened 10-20 % after it re-hardened above it at a few per cent strain (sandstone at
-    sigma3 = 10 MPa: first peak 107 MPa at 0.8 % strain, 115 MPa at 1.8 %), as the crushed
-    band compacts between the walls; taking that later maximum raised the two-point friction
-    angle from 29 to 35 deg."""
-    top, at = -math.inf, None
-    for j, v in enumerate(dev):
-        if v > top:
-            top, at = v, j
-        elif v < SOFTENED * top:
-            return at
-    return None
 
 
 def has_peaked(reason: str, dev, i: int) -> bool:

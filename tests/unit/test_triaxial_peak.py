@@ -25,13 +25,3 @@ def test_softening_after_the_maximum_is_a_peak():
 def test_a_stage_stopped_by_the_post_peak_drop_has_peaked():
     q = np.array([0.0, 30.0, 12.0])
     assert has_peaked("drop", q, 1)
-
-
-def test_the_peak_is_the_first_maximum_the_curve_softens_from():
-    from geodem.workflow.triaxial import first_peak
-
-    # fails at 107, softens to 95 (11 % below), then re-hardens past it as the band compacts
-    q = np.array([0.0, 50.0, 107.0, 95.0, 100.0, 112.0, 115.0, 110.0])
-    assert first_peak(q) == 2
-    assert first_peak(np.array([0.0, 10.0, 30.0, 29.0, 31.0])) is None  # dips < 5 %: none
-    assert first_peak(np.array([0.0, 10.0, 30.0, 29.0, 31.0, 28.0])) == 4
