@@ -1,5 +1,5 @@
 """The long calibrations (slow): `geodem calibrate` of library rocks on real specimens meets E,
-Cu, Tu within 5 %, nu within 0.03 and the friction angle within 2 deg in at most 8 iterations, and the stored calibration is
+Cu, Tu within 5 % and nu within 0.03 in at most 8 iterations, and the stored calibration is
 what it finds again. The cheap slice in CI is tests/unit/test_calibrate.py (synthetic packings).
 Measured 2026-12-02 (docs/calibration.md, Tu from direct tension, stresses over the
 surface-to-surface width): granite 2-D converged at iteration 2 in 62 s, marble 3-D at
@@ -26,7 +26,6 @@ def test_a_library_rock_calibrates_to_its_lab_values(tmp_path, name, dim):
     for k in ("E", "Cu", "Tu"):
         assert abs(s["rel_errors"][k]) <= 0.05, (k, s["rel_errors"])
     assert abs(s["abs_errors"]["nu"]) <= 0.03
-    assert abs(s["abs_errors"]["phi"]) <= 2.0  # the friction angle, from the triaxial test
     # the same seed on any thread count gives the same packing: the stored record is found again
     stored = load_material(name).calibrated[f"{dim}d"]
     assert s["measured"] == pytest.approx(stored["measured"], rel=1e-9)
@@ -65,7 +64,6 @@ def test_a_rock_outside_the_library_calibrates_the_same_way(tmp_path, name, valu
     for k in ("E", "Cu", "Tu"):
         assert abs(s["rel_errors"][k]) <= 0.05, (k, s["rel_errors"])
     assert abs(s["abs_errors"]["nu"]) <= 0.03
-    assert abs(s["abs_errors"]["phi"]) <= 2.0
     assert s["brazilian"]["tensile_strength"] > 0  # the check ran and is stored
     assert load_material(path).calibrated["2d"]["brazilian"]["over_target"] == pytest.approx(
         s["brazilian"]["over_target"], abs=1e-4)
