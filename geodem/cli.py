@@ -579,12 +579,12 @@ def _phi_text(rec) -> str:
     """The friction angle of a calibration iteration, as the progress line prints it."""
     if "phi_abs_error" not in rec:
         return ""
-    phi = rec["measured"].get("phi")
+    phi, mu = rec["measured"].get("phi"), rec["element"]["mu"]
     if phi is None:
-        return ", phi not measured yet (mu " + f"{rec['element']['mu']:.3g})"
+        return f", phi not measured yet (mu {mu:.3g})"
     if not math.isfinite(phi):
-        return f", phi: no confined peak (mu {rec['element']['mu']:.3g})"
-    return f", phi {phi:.1f} deg ({rec['phi_abs_error']:+.1f}, mu {rec['element']['mu']:.3g})"
+        return f", phi: no confined peak (mu {mu:.3g})"
+    return f", phi {phi:.1f} deg ({rec['phi_abs_error']:+.1f}, mu {mu:.3g})"
 
 
 @app.command("calibrate", help=(

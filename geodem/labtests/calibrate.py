@@ -346,9 +346,9 @@ def _bracket_mu(U, phi, x_mu):
     confined stage hardened (phi = +inf: no peak, the rock hardens instead of failing). Below
     the highest mu that peaked, ``x_mu`` stands; above it, the next is at most halfway (in ln
     mu) to the lowest mu that hardened, and with no peaked sample :data:`HARDENED_STEP` below
-    that. Returns
-    ``(ln mu, out_of_reach)``: out of reach when more friction than the highest that peaked
-    is wanted and :data:`HARDENING_BRACKET` times it hardens (then that highest is kept)."""
+    that. Returns ``(ln mu, out_of_reach)``: out of reach when more friction than the highest
+    that peaked is wanted and :data:`HARDENING_BRACKET` times it hardens (then that highest is
+    kept)."""
     hard = U[np.isposinf(phi), 4]
     if not hard.size:
         return x_mu, False
@@ -451,8 +451,8 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=Fal
     x_new = X[-1].copy()
     x_new[:n], at_bound = _solve_paired(J, np.array(rhs), X[-1, :n], bounds[:n],
                                         SHAPE_SCALE[:n])
-    unreachable = {key for key, hit in zip(("nu", "Tu" if prefer == "Cu" else "Cu", "phi"),
-                                           at_bound) if hit}
+    other = "Tu" if prefer == "Cu" else "Cu"  # the strength that follows from the ratio
+    unreachable = {key for key, hit in zip(("nu", other, "phi"), at_bound) if hit}
     if friction:
         mu_solved = x_new[2]
         x_new[2], hardens = _bracket_mu(U, Y[:, 4], mu_solved)
@@ -462,12 +462,11 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=Fal
             r2 = np.array(rhs[:2]) - J[:2, 2] * (x_new[2] - X[-1, 2])
             x_new[:2], at2 = _solve_paired(J[:2, :2], r2, X[-1, :2], bounds[:2],
                                            SHAPE_SCALE[:2])
-            unreachable |= {key for key, hit in zip(("nu", "Tu" if prefer == "Cu" else "Cu"),
-                                                    at2) if hit}
+            unreachable |= {key for key, hit in zip(("nu", other), at2) if hit}
     spread = np.ptp(X[:, 1]) if len(X) > 1 else 0.0
     if (len(X) >= 3 and spread >= MIN_SECANT_STEP and raw_ratio_slope < RATIO_SATURATION
             and y_target[3] - y_target[2] > ratio.max()):
-        unreachable.add("Tu" if prefer == "Cu" else "Cu")
+        unreachable.add(other)
         x_new[1] = X[int(np.argmax(ratio)), 1]
     fe0, g_e = _shape_plane(X, f_e, (p["dlnE_ds"], 0.0), 0.0, w)
     fs0, g_s = _shape_plane(X, f_s, (0.0, p["dlnCu_dlnrho"] if prefer == "Cu"
@@ -716,9 +715,8 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         rec["score"] = _score(rec["measured"], tg, tol, reachable, keys)
     best = min(history, key=lambda r: r["score"])
     # a target flagged out of reach on the way but met by the best iteration is reachable
-    met = {k for k in keys if not reachable[k] and _score(best["measured"], tg, tol,
-                                                        {j: j == k for j in keys},
-                                                        keys) <= 1.0}
+    met = {k for k in keys if not reachable[k]
+           and _score(best["measured"], tg, tol, {}, (k,)) <= 1.0}
     if met:
         for k in met:
             reachable[k] = True
