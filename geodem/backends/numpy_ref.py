@@ -139,7 +139,7 @@ class NumpyBackend(HostBackend):
         qf = np.where(valid, qf, 0.0)
 
         if s.rotation:
-            torque, qr = self._rolling(valid, j, n, fn, new)
+            torque, qr = self._rolling(valid, j, n, fn, new, intact, bf)
             qf = qf + qr
         s.fs[:] = np.where(valid[..., None], new, s.fs)
         s.cstate[:] = np.where(tens, code_t, np.where(shr, code_s, s.cstate))
@@ -187,14 +187,18 @@ class NumpyBackend(HostBackend):
         fd = np.where((cstate_new != BONDED) & (fd > -fn), -fn, fd)
         return np.where(on, fd, 0.0)
 
-    def _rolling(self, valid, j, n, fn, shear):
+    def _rolling(self, valid, j, n, fn, shear, bonded, bf):
         """Torques (N, nr) of the shear forces and the rolling moments, and the rolling heat
-        (N, W); updates ``mr`` (geodem.core.law.rolling, whole-matrix form)."""
+        (N, W); updates ``mr`` (geodem.core.law.rolling, whole-matrix form). ``bonded``: the
+        contacts bonded after this step's law (they also hold ``bond_moment R* F_b``, ``bf`` =
+        F_b)."""
         s = self.s
         ri = s.r[:, None]
         rs = series_array(ri, s.r[j])
         kr = series_array(s.ks[:, None], s.ks[j]) * rs * rs
         lim = np.minimum(s.mu_r[:, None], s.mu_r[j]) * rs * np.maximum(-fn, 0.0)
+        mb = np.minimum(s.bond_moment[:, None], s.bond_moment[j])
+        lim = lim + np.where(bonded & (mb > 0.0), mb * rs * np.where(mb > 0.0, bf, 0.0), 0.0)
         hk = np.where(kr > 0.0, 0.5 / np.where(kr > 0.0, kr, 1.0), 0.0)
         t = s.dth[:, None, :] - s.dth[j]
         if s.dim == 2:

@@ -58,6 +58,9 @@ def load_state(path, with_arrays: bool = False):
         more = {k: z[k].copy() for k in z.files if k not in names and k != "__meta__"}
     kw.update({k: meta.get(k, _DEFAULTS.get(k)) for k in _SCALARS})
     kw["groups"] = meta["groups"]
+    if kw.get("w") is not None and kw.get("bond_moment") is None:
+        # checkpoints written before moment-resisting bonds: none
+        kw["bond_moment"] = np.zeros(kw["w"].shape[0])
     if with_arrays:
         return State(**kw), meta["extra"], more
     return State(**kw), meta["extra"]

@@ -141,6 +141,51 @@ def test_numba_matches_numpy_with_rotation(dim):
     assert np.abs(a.mr).max() > 0.0 and np.abs(a.w).max() > 0.0
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_numba_matches_numpy_with_moment_bonds(dim):
+    st = _rotating_specimen(300, dim)
+    st.bond_moment[:] = np.linspace(0.2, 0.8, st.n)  # the pair's smaller value counts
+    a = numba_against_numpy(st, ("x", "v", "a", "fs", "w", "wa", "mr", "q_visc", "q_fric",
+                                 "w_ext"))
+    assert np.abs(a.mr).max() > 0.0
+
+
+def turned_bond(bond_moment, steps, kn=1e5, xb=1e-5):
+    """Two touching bonded discs, both held in place; the second turns at a prescribed rate
+    (mu_r = 0, no normal force): returns the rolling moment on the first, the rolling
+    stiffness, the bond's moment limit, the angle turned and the friction heat."""
+    x = np.array([[0.0, 0.0], [2.0 * R, 0.0]])
+    ks = 0.5 * kn
+    st = new_state(x, [R, R], [M, M], kn=kn, ks=ks, xb=xb, fs0=1e12, mu=0.5, width=4)
+    st.free[:] = 0.0
+    neighbors.rows_from_pairs(st, np.array([0]), np.array([1]), bonded=True)
+    enable_rotation(st, mu_r=0.0, bond_moment=bond_moment)
+    st.w[1, 0] = 10.0
+    sim = Simulation(st, backend="numba")
+    sim.run(steps)
+    rs = 0.5 * R  # R* of two equal discs
+    kr = 0.5 * ks * rs * rs  # two shear springs in series, times R*^2
+    k = int(np.flatnonzero(st.nbr[0] == 1)[0])
+    assert st.cstate[0, k] == 1  # still bonded: the moment does not break it
+    return (float(st.mr[0, k, 0]), kr, bond_moment * rs * kn * xb, steps * st.dt * 10.0,
+            float(st.q_fric.sum()))
+
+
+def test_moment_bond_holds_the_rolling_moment_elastically_up_to_its_strength():
+    # 0.5 of the limit after the first run: elastic, M = kr theta (the turned disc drags the
+    # other one's moment along: relative rotation dth_0 - dth_1 < 0)
+    m, kr, lim, theta, q = turned_bond(1.0, 50)
+    assert kr * theta < lim
+    assert m == pytest.approx(kr * theta, rel=1e-9) and q == pytest.approx(0.0, abs=1e-18)
+    # turned further: capped at bond_moment R* F_b, the slip is heat
+    m, kr, lim, theta, q = turned_bond(1.0, 2000)
+    assert kr * theta > 1.5 * lim
+    assert m == pytest.approx(lim, rel=1e-12) and q > 0.0
+    # without moment bonds (bond_moment 0) a bond in no compression holds no moment
+    m, *_ = turned_bond(0.0, 50)
+    assert m == 0.0
+
+
 CUDA_SCRIPT = r"""
 import json, sys, numpy as np
 sys.path.insert(0, sys.argv[1])
@@ -148,8 +193,9 @@ from tests.unit.test_rotation import _rotating_specimen, rel_diff
 from tests.conftest import step_backends
 out = {}
 for dim in (2, 3):
-    res = {k: st for k, (st, _) in step_backends(_rotating_specimen(60, dim), ("cupy", "numpy"),
-                                                  4).items()}
+    base = _rotating_specimen(60, dim)
+    base.bond_moment[:] = 0.5
+    res = {k: st for k, (st, _) in step_backends(base, ("cupy", "numpy"), 4).items()}
     out[dim] = max(rel_diff(res["cupy"], res["numpy"], k)
                    for k in ("x", "v", "fs", "w", "wa", "mr"))
 print(json.dumps(out))
@@ -206,6 +252,8 @@ def test_bad_rotation_input_is_refused():
     st = disc_on_floor(2, 0.0, mu_r=-0.1)
     with pytest.raises(ValueError, match="mu_r of element 0.*>= 0"):
         Simulation(st, backend="numba")
+    with pytest.raises(ValueError, match="bond_moment = -1.*>= 0"):
+        enable_rotation(disc_on_floor(2, 0.0), bond_moment=-1.0)
     from geodem.build.walls import append_elements
     with pytest.raises(ValueError, match="enable_rotation / enable_contact_damping"):
         append_elements(disc_on_floor(2, 0.0), np.zeros((1, 2)), r=R, m=M, kn=1.0)
