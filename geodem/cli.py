@@ -573,6 +573,24 @@ BondGapOpt = Annotated[Optional[float], typer.Option(
 BondWeibullOpt = Annotated[Optional[float], typer.Option(
     "--bond-weibull", min=0.5, max=100, help="Weibull modulus of the per-bond strength "
                                              "scatter (default: none, or as stored).")]
+BondMomentOpt = Annotated[Optional[float], typer.Option(
+    "--bond-moment", min=0.0, max=100, help="Turning elements with moment-resisting bonds: a "
+                                            "bond holds a rolling moment up to this x R* F_b "
+                                            "(switches rotation on; docs/calibration.md, "
+                                            "'Rotation and moment-resisting bonds').")]
+RollingFrictionOpt = Annotated[Optional[float], typer.Option(
+    "--rolling-friction", min=0.0, max=2.0, help="Turning elements with rolling resistance "
+                                                 "mu_r of contacts in compression (switches "
+                                                 "rotation on).")]
+
+
+def _rotation_structure(bond_moment, rolling_friction) -> dict:
+    """The rotation keys of a micro-structure from --bond-moment / --rolling-friction (empty
+    when neither is given)."""
+    if bond_moment is None and rolling_friction is None:
+        return {}
+    return {"rotation": True, "bond_moment": bond_moment or 0.0,
+            "rolling_friction": rolling_friction or 0.0}
 
 
 def _phi_text(rec) -> str:
@@ -624,6 +642,8 @@ def calibrate_cmd(
     "isotropic",
     bond_gap: BondGapOpt = None,
     bond_weibull: BondWeibullOpt = None,
+    bond_moment: BondMomentOpt = None,
+    rolling_friction: RollingFrictionOpt = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
     force: Annotated[bool, typer.Option("--force", help="Calibrate even when the targets lie "
@@ -657,14 +677,15 @@ def calibrate_cmd(
     if min(size) < 4 * d_mean:
         _fail(f"--d-mean {d_mean:g} m: allowed up to {min(size) / 4:g} m (the specimens are "
               f"{min(size):g} m across and need at least 4 elements)", USER_ERROR)
-    structure = {"packing": packing, "bond_gap": bond_gap, "bond_strength_weibull": bond_weibull}
+    structure = {"packing": packing, "bond_gap": bond_gap, "bond_strength_weibull": bond_weibull,
+                 **_rotation_structure(bond_moment, rolling_friction)}
     try:
         spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim, d_mean=d_mean,
                                ucs_size=size, seed=seed, iterations=iterations,
                                backend=backend, prefer=prefer, structure=structure,
                                check_reach=not force, friction=friction)
     except ValueError as exc:
-        _fail(f"--packing / --bond-gap / --bond-weibull: {exc}", USER_ERROR)
+        _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
     if not force:
         try:
             check_reachable(spec)
@@ -704,8 +725,9 @@ def calibrate_cmd(
     "UCS, direct-tension and Brazilian workflows once (specimens as geodem calibrate builds "
     "them) and print E, nu, Cu, Tu (direct tension), Cu / Tu and the Brazilian strength "
     "against the lab values; --friction also runs the calibration's two-stage triaxial test "
-    "and prints the friction angle against atan(mu_i). --packing, --bond-gap and "
-    "--bond-weibull replace the stored micro-structure, to see what each does.\n\n"
+    "and prints the friction angle against atan(mu_i). --packing, --bond-gap, "
+    "--bond-weibull, --bond-moment and --rolling-friction replace the stored "
+    "micro-structure, to see what each does.\n\n"
     "Writes summary.json (measured, targets, element, structure) and the two runs into "
     "-o DIR. Exit status: 0 done, 1 a run failed, 2 invalid input."))
 @_guard
@@ -717,6 +739,8 @@ def rock_cmd(
         "--packing", help="Packing recipe: isotropic or deposit (2-D only).")] = None,
     bond_gap: BondGapOpt = None,
     bond_weibull: BondWeibullOpt = None,
+    bond_moment: BondMomentOpt = None,
+    rolling_friction: RollingFrictionOpt = None,
     friction: Annotated[bool, typer.Option("--friction", help="Also run the triaxial friction "
                                                               "test (two stages).")] = False,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
@@ -742,6 +766,7 @@ def rock_cmd(
             el[key] = value
     if packing == "deposit" and bond_gap is None:
         el.pop("bond_gap", None)  # a bond range belongs to the isotropic recipe
+    el.update(_rotation_structure(bond_moment, rolling_friction))
     sp = cal.get("specimen", {})
     size = tuple(sp.get("ucs_size") or ((0.1, 0.1, 0.2) if dim == 3 else (0.1, 0.2)))
     structure = {k: el[k] for k in STRUCTURE_KEYS if k in el}
@@ -751,7 +776,7 @@ def rock_cmd(
                                ucs_size=size, seed=int(sp.get("seed", 0)), iterations=1,
                                structure=structure)
     except ValueError as exc:
-        _fail(f"--packing / --bond-gap / --bond-weibull: {exc}", USER_ERROR)
+        _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
     con = _out()
     con.print(f"measuring {mat.name} ({dim}-D, {structure}) -> {out}", highlight=False)
     m = measure(spec, el, o)

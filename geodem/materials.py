@@ -102,9 +102,14 @@ def at_size(scaled: dict, d: float) -> dict:
 #: ``isotropic`` or ``deposit``), ``bond_gap`` (bond range: pairs whose surface gap is below
 #: ``bond_gap x d_mean`` are bonded, then made to touch) and ``bond_strength_weibull`` (the
 #: Weibull modulus of the per-bond strength factors,
-#: :func:`geodem.build.specimen.bond_strength_factors`). A calibration stores them with the
-#: element parameters, so every test builds the rock the same way.
-STRUCTURE_KEYS = ("packing", "bond_gap", "bond_strength_weibull")
+#: :func:`geodem.build.specimen.bond_strength_factors`), and ``rotation`` with
+#: ``rolling_friction`` and ``bond_moment`` (turning elements with rolling resistance and
+#: moment-resisting bonds, :func:`geodem.core.state.enable_rotation`, switched on for the
+#: whole model by the workflow runner). A calibration stores them with the element
+#: parameters, so every test builds the rock the same way.
+STRUCTURE_KEYS = ("packing", "bond_gap", "bond_strength_weibull", "rotation",
+                  "rolling_friction", "bond_moment")
+ROTATION_KEYS = ("rotation", "rolling_friction", "bond_moment")
 
 
 def _with_structure(out: dict, source: dict) -> dict:

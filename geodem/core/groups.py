@@ -68,16 +68,28 @@ def _dofs(state, dofs):
     return out
 
 
+def _hold_rotation(state, idx) -> None:
+    # with rotation, an element whose translation is wholly fixed or prescribed does not turn
+    # either (a platen or a wall, as enable_rotation sets them)
+    if state.rotation:
+        held = idx[(state.free[idx] == 0.0).all(axis=1)]
+        state.rfree[held] = 0.0
+        state.w[held] = 0.0
+
+
 def fix(state, name: str, dofs=None) -> None:
-    """Fix the degrees of freedom ``dofs`` (default all; names 'x','y','z' or indices)."""
+    """Fix the degrees of freedom ``dofs`` (default all; names 'x','y','z' or indices). With
+    rotation, an element left with no free translation stops turning too."""
     idx = members(state, name)
     for d in _dofs(state, dofs):
         state.free[idx, d] = 0.0
         state.v[idx, d] = 0.0
+    _hold_rotation(state, idx)
 
 
 def set_velocity(state, name: str, velocity) -> None:
-    """Move group ``name`` kinematically at ``velocity`` [m/s] (``dim`` values; NaN = free)."""
+    """Move group ``name`` kinematically at ``velocity`` [m/s] (``dim`` values; NaN = free).
+    With rotation, an element left with no free translation stops turning too."""
     vel = np.asarray(velocity, float)
     if vel.shape != (state.dim,):
         raise ValueError(f"velocity must have {state.dim} components, got {vel.shape}")
@@ -87,6 +99,7 @@ def set_velocity(state, name: str, velocity) -> None:
             continue
         state.free[idx, d] = 0.0
         state.v[idx, d] = vel[d]
+    _hold_rotation(state, idx)
 
 
 def release(state, name: str, dofs=None) -> None:

@@ -486,7 +486,7 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=Fal
 # ---------------------------------------------------------------------------------- runs
 def _material_block(spec, el):
     return dict({"rho": float(spec.targets["rho"]), "dim": spec.dim},
-                **{k: (v if isinstance(v, str) else float(v)) for k, v in el.items()})
+                **{k: (v if isinstance(v, (str, bool)) else float(v)) for k, v in el.items()})
 
 
 def _specimen_workflow(spec, el, what, step):
@@ -803,7 +803,7 @@ def _unreachable_notes(spec, tg, best, reachable) -> list:
 def calibration_block(summary: dict) -> dict:
     """The ``calibrated: {<dim>d: ...}`` entry of a material file."""
     block = {
-        "element": {k: (v if isinstance(v, str) else float(v))
+        "element": {k: (v if isinstance(v, (str, bool)) else float(v))
                     for k, v in summary["element"].items()},
         "measured": {k: (None if v is None or not math.isfinite(v) else float(v))
                      for k, v in summary["measured"].items()},

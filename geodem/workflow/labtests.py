@@ -143,6 +143,60 @@ def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> 
                      "per-size element parameters or {library: NAME}")
 
 
+def material_rotation(cfg, model) -> dict | None:
+    """The rotation option of the materials ``model`` uses (``rotation``, ``rolling_friction``,
+    ``bond_moment`` of their element parameters): None when none asks for it, else
+    ``{"rolling_friction": mu_r, "bond_moment": b}``. Rotation is a property of the whole
+    model (the engine turns every element or none), so its materials must agree; a
+    ``BuildError`` names the first that differs."""
+    dim = getattr(model, "dim", None)
+    if dim not in (2, 3):
+        return None
+    seen = {}
+    for _, name in model.material_refs():
+        if name in seen or name not in cfg.materials:
+            continue
+        try:
+            el = specimen_material(cfg, name, dim).element or {}
+        except ValueError:
+            continue  # the build reports it
+        seen[name] = ((float(el.get("rolling_friction") or 0.0),
+                       float(el.get("bond_moment") or 0.0)) if el.get("rotation") else None)
+    wanted = {v for v in seen.values()}
+    if wanted <= {None}:
+        return None
+    if len(wanted) > 1:
+        first = next(n for n, v in seen.items() if v != next(iter(seen.values())))
+
+        def said(v):
+            return "rotation: false" if v is None else f"mu_r {v[0]:g}, bond_moment {v[1]:g}"
+
+        listed = ", ".join(f"{n!r} ({said(v)})" for n, v in seen.items())
+        raise BuildError(("materials", first), "rotation is a property of the whole model (every "
+                         f"element turns or none): the materials {listed} differ; allowed: the "
+                         "same rotation, rolling_friction and bond_moment in every material of "
+                         "the model")
+    mu_r, mb = wanted.pop()
+    return {"rolling_friction": mu_r, "bond_moment": mb}
+
+
+def apply_material_rotation(cfg, built: BuiltModel) -> None:
+    """Switch on the materials' rotation (:func:`material_rotation`) for the built model:
+    every element turns (walls and platens, being fixed or prescribed, do not), with the
+    materials' rolling friction and moment-resisting bonds; recorded in ``built.info``."""
+    rot = material_rotation(cfg, cfg.model)
+    if rot is None:
+        return
+    from geodem.core.state import enable_rotation
+
+    if built.state.rotation:
+        raise BuildError(("model",), "the model turns its elements already (its own rotation "
+                                     "option) and its material asks for rotation too; allowed: "
+                                     "one of the two")
+    enable_rotation(built.state, mu_r=rot["rolling_friction"], bond_moment=rot["bond_moment"])
+    built.info["rotation"] = rot
+
+
 # ============================================================================ specimen
 def material_problems(cfg, name: str, dim: int, d_mean: float | None = None) -> list:
     """``[(("material",), message)]`` when material ``name`` cannot serve a specimen of
@@ -310,7 +364,8 @@ class PlatenTest(StepBase):
 
     def start_loading(self, ctx, sign: float, height: float, d: float) -> None:
         """Standard damping on (``eta_c / N``, N = height / d), bottom fixed along the loading
-        axis, top moving at ``sign x strain_rate x height`` (sign -1: compression)."""
+        axis, top moving at ``sign x strain_rate x height`` (sign -1: compression); with
+        rotation, the platens' elements do not turn."""
         from geodem.core import groups, timestep
 
         st = ctx.state
@@ -323,6 +378,12 @@ class PlatenTest(StepBase):
                 s.eta[:] = timestep.standard_damping(s, height / d)
             groups.fix(s, "bottom", [ax])
             groups.set_velocity(s, "top", v)
+            if s.rotation:
+                # the platens are rigid: their elements neither tilt nor roll
+                for g in ("bottom", "top"):
+                    i = groups.members(s, g)
+                    s.rfree[i] = 0.0
+                    s.w[i] = 0.0
 
         ctx.decree(setup, "top")
 

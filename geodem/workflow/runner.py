@@ -212,6 +212,7 @@ def _check_step_counts(doc, steps, dt) -> None:
 
 def _build(cfg, doc):
     from geodem.core.engine import validate_state
+    from geodem.workflow.labtests import apply_material_rotation
     from geodem.workflow.models import BuildError
 
     try:
@@ -221,6 +222,7 @@ def _build(cfg, doc):
             # the way; a build that succeeds passes its warnings on
             warnings.simplefilter("always")
             built = cfg.model.build(cfg)
+            apply_material_rotation(cfg, built)
         for w in caught:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     except ArithmeticError as exc:

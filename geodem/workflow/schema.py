@@ -210,6 +210,27 @@ class _Structure(_MaterialInfo):
         None, gt=0, le=0.3, description="Bond range with packing: isotropic: pairs whose "
                                         "surface gap is below bond_gap x d_mean are bonded "
                                         "(default 0.01; larger: more bonds per element)")
+    rotation: Optional[bool] = F(
+        None, description="Elements turn (rotational degrees of freedom, for every element "
+                          "of the model); unset or false: MatDEM's translation-only elements")
+    rolling_friction: Optional[float] = F(
+        None, ge=0, le=2, description="With rotation: rolling-resistance coefficient mu_r of "
+                                      "contacts in compression (moment up to mu_r R* |Fn|, "
+                                      "R* = R_i R_j / (R_i + R_j)); default 0")
+    bond_moment: Optional[float] = F(
+        None, ge=0, le=100, description="With rotation: moment-resisting bonds; a bond holds "
+                                        "a rolling moment up to bond_moment R* F_b (F_b its "
+                                        "tensile strength; about 0.67 for a 2-D parallel "
+                                        "bond as wide as the elements, 0.5 in 3-D); default "
+                                        "0: a bond turns freely")
+
+    @model_validator(mode="after")
+    def _rotation_options(self):
+        for key in ("rolling_friction", "bond_moment"):
+            if getattr(self, key) is not None and not self.rotation:
+                raise ValueError(f"{key} = {getattr(self, key):g} needs rotation: true (the "
+                                 "elements must turn to roll)")
+        return self
 
 
 class MicroMaterial(_Structure):

@@ -640,6 +640,9 @@ class Walls:
                 i = self.idx[g]
                 s.free[i] = 0.0
                 s.v[i] = v
+                if s.rotation:
+                    s.rfree[i] = 0.0
+                    s.w[i] = 0.0
 
         ctx.decree(put, book_energy=False)
 

@@ -1,0 +1,76 @@
+"""Rotation as a material option (``rotation``, ``rolling_friction``, ``bond_moment``): the
+runner turns every element of a model whose material asks for it, walls and platens held; the
+options are refused without rotation, and materials of one model must agree."""
+import types
+
+import numpy as np
+import pytest
+import yaml
+
+from geodem.workflow import WorkflowError, prepare
+from geodem.workflow.labtests import material_rotation
+from geodem.workflow.models import BuildError
+from geodem.workflow.schema import ScaledMicroMaterial
+
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
+
+# the library sandstone's 2-D element parameters, per size
+ROCK = {"rho": 2400.0, "dim": 2, "kn_per_d": 3.34e10, "ks_per_d": 1.68e10,
+        "xb_per_d": 2.16e-4, "fs0_per_d2": 6.05e7, "mu": 0.255, "packing": "isotropic"}
+
+
+def _ucs(tmp_path, **structure):
+    wf = {"metadata": {"name": "ucs_rot", "seed": 0},
+          "model": {"type": "specimen", "dim": 2, "size": [0.04, 0.08], "d_mean": 0.005,
+                    "material": "rock"},
+          "materials": {"rock": dict(ROCK, **structure)},
+          "steps": [{"kind": "uniaxial", "strain_rate": 0.2, "max_strain": 0.002}]}
+    p = tmp_path / "ucs_rot.yaml"
+    p.write_text(yaml.safe_dump(wf, sort_keys=False))
+    return p
+
+
+def test_a_rotating_material_turns_the_specimen_and_holds_the_platens(tmp_path):
+    prep = prepare(_ucs(tmp_path, rotation=True, bond_moment=0.5, rolling_friction=0.1),
+                   backend="numba")
+    st = prep.built.state
+    assert st.rotation
+    assert np.all(st.bond_moment == 0.5) and np.all(st.mu_r == 0.1)
+    assert np.all(st.rfree == 1.0)  # the platens are held when the loading starts
+    assert prep.built.info["rotation"] == {"rolling_friction": 0.1, "bond_moment": 0.5}
+
+
+def test_held_translation_holds_the_rotation_too(tmp_path):
+    from geodem.core import groups
+
+    st = prepare(_ucs(tmp_path, rotation=True), backend="numba").built.state
+    st.w[:] = 1.0
+    top, bot = groups.members(st, "top"), groups.members(st, "bottom")
+    groups.fix(st, "bottom", [1])  # x still free: it may turn
+    assert np.all(st.rfree[bot] == 1.0)
+    groups.set_velocity(st, "top", [0.0, -0.01])  # wholly prescribed: it stops turning
+    assert np.all(st.rfree[top] == 0.0) and np.all(st.w[top] == 0.0)
+    others = np.setdiff1d(np.arange(st.n), top)
+    assert np.all(st.rfree[others] == 1.0) and np.all(st.w[others] == 1.0)
+
+
+def test_without_the_option_the_specimen_translates_only(tmp_path):
+    assert not prepare(_ucs(tmp_path), backend="numba").built.state.rotation
+
+
+@pytest.mark.parametrize("key", ["bond_moment", "rolling_friction"])
+def test_rolling_options_need_rotation(tmp_path, key):
+    with pytest.raises(WorkflowError, match=f"{key} = 0.5 needs rotation: true"):
+        prepare(_ucs(tmp_path, **{key: 0.5}), backend="numba")
+
+
+def test_materials_of_one_model_must_agree_on_rotation():
+    mats = {"a": ScaledMicroMaterial(**ROCK, rotation=True, bond_moment=0.5),
+            "b": ScaledMicroMaterial(**ROCK)}
+    cfg = types.SimpleNamespace(materials=mats)
+    model = types.SimpleNamespace(dim=2, material_refs=lambda: [(("m",), "a"), (("n",), "b")])
+    with pytest.raises(BuildError, match="'a' \\(mu_r 0, bond_moment 0.5\\), 'b' "
+                                         "\\(rotation: false\\) differ"):
+        material_rotation(cfg, model)
+    mats["b"] = ScaledMicroMaterial(**ROCK, rotation=True, bond_moment=0.5)
+    assert material_rotation(cfg, model) == {"rolling_friction": 0.0, "bond_moment": 0.5}
