@@ -486,7 +486,8 @@ def run_workflow_cmd(
     overwrite: Annotated[bool, typer.Option(
         "--overwrite", help="Replace the run in an existing run directory.")] = False,
     no_progress: Annotated[bool, typer.Option(
-        "--no-progress", help="No progress bar (progress lines go to log.txt).")] = False,
+        "--no-progress", help="No progress bar and no build progress (progress lines go to "
+                              "log.txt).")] = False,
     verbose: Annotated[bool, typer.Option("-v", "--verbose",
                                           help="Show full tracebacks on errors.")] = False,
 ):
@@ -502,15 +503,18 @@ def run_workflow_cmd(
         _OPTS["verbose"] = True
     from geodem.workflow.runner import Runner, dry_run_report, prepare
 
-    prep = prepare(file, sets=_parse_sets(sets), backend=backend)
+    if out is None and not dry_run:
+        _fail("option -o/--out (the run directory) is required unless --dry-run", USER_ERROR)
+    err = _err()
+    # the run directory is checked before the model is built (a bad -o fails at once)
+    prep = prepare(file, sets=_parse_sets(sets), backend=backend,
+                   run_dir=None if dry_run else out, overwrite=overwrite, resume=resume,
+                   progress=None if no_progress else _build_progress(err))
     con = _out()
     if dry_run:
         for line in dry_run_report(prep):
             con.print(escape(line), highlight=False, soft_wrap=True)
         return
-    if out is None:
-        _fail("option -o/--out (the run directory) is required unless --dry-run", USER_ERROR)
-    err = _err()
     runner = Runner(prep, out, resume=resume, overwrite=overwrite,
                     stop_after_steps=stop_after_steps,
                     progress=False if no_progress else err.is_terminal, console=err,
@@ -519,6 +523,22 @@ def run_workflow_cmd(
     _print_run_summary(con, summary, out)
     if code:
         raise typer.Exit(code)
+
+
+def _build_progress(err: Console):
+    """The model build's progress lines (geodem.workflow.runner.prepare), on ``err`` when it
+    is a terminal, each with the seconds since the build started; None (silent) otherwise."""
+    import time
+
+    if not err.is_terminal:
+        return None
+    t0 = time.perf_counter()
+
+    def show(text: str) -> None:
+        err.print(f"[{time.perf_counter() - t0:6.1f} s] {escape(text)}", style="dim",
+                  highlight=False, soft_wrap=True)
+
+    return show
 
 
 def _print_run_summary(con, s: dict, out: str) -> None:
@@ -1099,7 +1119,8 @@ def validate_cmd(
         _OPTS["verbose"] = True
     from geodem.workflow.runner import prepare
 
-    prep = prepare(file, sets=_parse_sets(sets), backend=backend)
+    prep = prepare(file, sets=_parse_sets(sets), backend=backend,
+                   progress=_build_progress(_err()))
     p = prep.plan
     sys.stdout.write(f"{file}: valid ({p.n_elements:,} elements, dt = {p.dt:.4g} s, "
                      f"{p.total_steps:,} time steps, backend {prep.backend})\n")

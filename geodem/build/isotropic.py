@@ -48,6 +48,8 @@ import time
 import numpy as np
 from numba import njit
 
+from geodem.build import progress
+
 __all__ = ["bond_network", "isotropic_packing", "jam", "stress_free", "stress_free_network"]
 
 PHI_START = 0.3
@@ -227,13 +229,21 @@ def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60, x0=None):
     hi_pts = []  # (scale, overlap, x) of jammed states above the target
     iters = cycles = 0
     ov = 0.0
+    progress.report(f"jamming: {r0.size:,} elements compressed to a mean overlap of "
+                    f"{overlap:.3g} d")
+    tick = progress.Every()
     for cycles in range(1, max_cycles + 1):
+        if tick.due():
+            progress.report(f"jamming: compression cycle {cycles} (at most {max_cycles}), mean "
+                            f"overlap {ov:.3g} d")
         r = lam * r0
         xt = np.clip(x.copy(), lo + r[:, None], hi - r[:, None])
         st, it = _minimise(xt, r, lo, hi, ftol, emin)
         iters += it
         ov = _load(xt, r, lo, hi) if st != 1 else 0.0
         if 0.5 * overlap <= ov <= 2.0 * overlap:
+            progress.report(f"jamming: jammed after {cycles} compression cycles ({iters:,} "
+                            f"minimiser iterations), mean overlap {ov:.3g} d")
             return xt, r, {"cycles": cycles, "fire_iterations": iters, "scale": float(lam),
                            "mean_overlap": ov, "status": int(st)}
         if ov > 2.0 * overlap:

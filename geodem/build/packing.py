@@ -35,6 +35,7 @@ import math
 
 import numpy as np
 
+from geodem.build import progress
 from geodem.core import groups, timestep
 from geodem.core.state import new_state
 
@@ -283,6 +284,8 @@ def deposit(st, *, gravity=None, tol=1e-2, max_steps=40000, chunk=500, backend=N
     st.eta[:] = 0.0
     st.eta[s] = st.m[s] * g / vt
     sim = _simulation(st, backend)
+    progress.report(f"deposition: {s.size:,} elements settling under gravity")
+    tick = progress.Every()
     steps = 0
     while steps < max_steps:
         sim.run(chunk)
@@ -290,11 +293,16 @@ def deposit(st, *, gravity=None, tol=1e-2, max_steps=40000, chunk=500, backend=N
         sp = np.sqrt((st.v[s] ** 2).sum(axis=1))
         if float(sp.max()) < 0.3 * vt or float(sp.mean()) < 0.02 * vt:
             break
+        if tick.due():
+            progress.report(f"deposition: {steps:,} time steps, fastest element at "
+                            f"{float(sp.max()) / vt:.2g} x the terminal speed (landed below 0.3)")
     n = _n_across(st)
     ratio = math.inf
     while steps < max_steps:
         ratio = sim.balance(n)
         steps += timestep.standard_balance_steps(n)
+        progress.report(f"deposition: balance, unbalanced-force ratio {ratio:.2g} (target "
+                        f"{tol:g}), {steps:,} time steps")
         if ratio < tol:
             break
     return {"steps": steps, "unbalanced_ratio": ratio, "gravity": g, "dt": st.dt, "sim": sim}
@@ -347,6 +355,8 @@ def compact(st, *, pressure=None, height=None, speed=None, tol=1e-2, max_steps=4
                book_energy=False)
     steps = 0
     reached = 0.0
+    progress.report("compaction: platen lowered onto the packing")
+    tick = progress.Every()
     while steps < max_steps:
         sim.run(chunk)
         steps += chunk
@@ -355,12 +365,17 @@ def compact(st, *, pressure=None, height=None, speed=None, tol=1e-2, max_steps=4
         if (pressure is not None and reached >= pressure) or \
                 (height is not None and bottom <= height):
             break
+        if tick.due():
+            progress.report(f"compaction: {steps:,} time steps, platen pressure {reached:.3g} Pa"
+                            + (f" of {pressure:.3g}" if pressure is not None else ""))
     sim.change(lambda z: groups.fix(z, "platen"), book_energy=False)
     n = _n_across(st)
     ratio = math.inf
     for _ in range(10):
         ratio = sim.balance(n)
         steps += timestep.standard_balance_steps(n)
+        progress.report(f"compaction: balance, unbalanced-force ratio {ratio:.2g} (target "
+                        f"{tol:g})")
         if ratio < tol:
             break
     reached = float(groups.reaction(st, "platen")[-1]) / area
@@ -423,6 +438,8 @@ def relax(st, overlap, *, max_rounds=30, sim=None, backend=None):
         rounds += 1
         sim.sync()
         worst = sample_overlap(st)
+        progress.report(f"relaxation: balance {rounds}, largest overlap {worst:.3g} m (target "
+                        f"{overlap:.3g})")
         # the released packing grows by its compaction strain (the lower the deposition
         # stiffness, the more): a platen it reaches would hold the overlaps in, so lift it again
         if "platen" in st.groups and _platen_touches_sample(st):
@@ -479,9 +496,11 @@ def stiffen(st, factor, *, tol=1e-3, max_rounds=10, backend=None):
     n = _n_across(st)
     ratio = math.inf
     steps = 0
-    for _ in range(max_rounds):
+    for k in range(max_rounds):
         ratio = sim.balance(n)
         steps += timestep.standard_balance_steps(n)
+        progress.report(f"stiffening x{factor:.3g}: balance {k + 1}, unbalanced-force ratio "
+                        f"{ratio:.2g} (target {tol:g})")
         if ratio < tol:
             break
     return {"steps": steps, "unbalanced_ratio": ratio, "dt": st.dt, "sim": sim}

@@ -123,13 +123,11 @@ class RunDir:
     def _err(self, msg) -> WorkflowError:
         return WorkflowError(ErrorItem(str(self.path), None, "(run directory)", msg))
 
-    def prepare(self, overwrite: bool, resume: bool) -> None:
-        """Create the folder, or check that it may be reused (WorkflowError, exit 2, if not).
-        ``--overwrite`` deletes only what the run wrote (:meth:`written_entries`); the names of
-        the other entries are left in ``self.kept``."""
+    def check(self, overwrite: bool, resume: bool) -> None:
+        """The refusals of :meth:`prepare`, changing nothing (WorkflowError, exit 2): run
+        before the model is built, so a bad ``-o`` fails at once. Reading every checkpoint's
+        CRC, and the actual write into the folder, are left to :meth:`prepare`."""
         p = self.path
-        self.kept = []
-        self.resume_from, self.damaged = None, []
         if overwrite and resume:
             raise self._err("--overwrite and --resume exclude each other: --resume continues the "
                             "run in this folder, --overwrite deletes it and starts again")
@@ -143,19 +141,49 @@ class RunDir:
             if not (p / MANIFEST).exists():
                 raise self._err("is not a geodem run directory (no manifest.json): nothing to "
                                 "resume; choose another -o to start a run")
-            self.resume_from = self.latest_checkpoint()  # every CRC read once, here
-            if self.resume_from is None:
-                raise self._err(f"nothing to resume: no complete checkpoint in {self.checkpoints}"
-                                " (run with --overwrite to start again)")
-            return
-        if not empty:
+            if not self.checkpoint_markers():
+                raise self._no_checkpoint()
+        elif not empty:
             if not overwrite:
                 raise self._err("already exists and is not empty; use --overwrite to replace "
                                 "the run in it, --resume to continue it, or choose another -o")
             if not (p / MANIFEST).exists():
                 raise self._err("is not a geodem run directory (no manifest.json); refusing to "
                                 "delete its contents with --overwrite: choose another -o")
-            # only what the run wrote goes: the user's own files in the folder stay
+        if p.exists():
+            if not os.access(p, os.W_OK | os.X_OK):
+                raise self._err("cannot write into the folder: permission denied; choose "
+                                "another -o")
+            return
+        # the folder is created by prepare: its nearest existing parent must be a writable folder
+        parent = next((q for q in p.absolute().parents if q.exists()), None)
+        if parent is not None and not parent.is_dir():
+            raise self._err(f"cannot create the folder: Not a directory ({parent} is a "
+                            "file); choose another -o")
+        if parent is not None and not os.access(parent, os.W_OK | os.X_OK):
+            raise self._err(f"cannot create the folder: Permission denied ({parent} cannot be "
+                            "written); choose another -o")
+
+    def _no_checkpoint(self) -> WorkflowError:
+        return self._err(f"nothing to resume: no complete checkpoint in {self.checkpoints} (run "
+                         "with --overwrite to start again)")
+
+    def prepare(self, overwrite: bool, resume: bool) -> None:
+        """Create the folder, or check that it may be reused (WorkflowError, exit 2, if not:
+        :meth:`check`). ``--overwrite`` deletes only what the run wrote
+        (:meth:`written_entries`); the names of the other entries are left in ``self.kept``."""
+        p = self.path
+        self.kept = []
+        self.resume_from, self.damaged = None, []
+        self.check(overwrite, resume)
+        if resume:
+            self.resume_from = self.latest_checkpoint()  # every CRC read once, here
+            if self.resume_from is None:
+                raise self._no_checkpoint()
+            return
+        if p.exists() and any(p.iterdir()):
+            # --overwrite (check refused it otherwise): only what the run wrote goes, the
+            # user's own files in the folder stay
             ours = self.written_entries()
             for child in p.iterdir():
                 if child.name not in ours:

@@ -171,7 +171,9 @@ def _resolve_backend(cfg, doc) -> str:
         raise WorkflowError(doc.error(("backend",), str(exc))) from None
 
 
-def _check_memory(cfg, doc) -> tuple[int, int | None]:
+def _check_memory(cfg, doc) -> tuple[int, int | None, int]:
+    """``(bytes needed, bytes available or None, estimated elements)``; WorkflowError when the
+    model would not fit."""
     from geodem.bench import available_memory
 
     m = cfg.model
@@ -188,7 +190,7 @@ def _check_memory(cfg, doc) -> tuple[int, int | None]:
             f"the model would have {n:,} elements and need about {human_bytes(need)} of memory "
             f"({per} bytes per element), more than the {human_bytes(avail)} available "
             f"(MemAvailable); allowed here: at most about {avail // per:,} elements")))
-    return need, avail
+    return need, avail, n
 
 
 #: disk room a run keeps beyond its estimates [bytes] (see Runner._check_disk_space)
@@ -332,11 +334,36 @@ def validated(path, sets=(), backend: str | None = None):
     return doc, cfg, name, resolved
 
 
-def prepare(path, sets=(), backend: str | None = None) -> Prepared:
-    """Validate, build and plan a workflow without stepping (WorkflowError on bad input)."""
+def prepare(path, sets=(), backend: str | None = None, *, run_dir=None, overwrite=False,
+            resume=False, progress=None) -> Prepared:
+    """Validate, build and plan a workflow without stepping (WorkflowError on bad input).
+
+    ``run_dir``: the run directory the workflow will run in, checked (with ``overwrite`` and
+    ``resume``: :meth:`~geodem.workflow.rundir.RunDir.check`, and for ``resume`` the config
+    hash of its newest checkpoint) before the model is built, so a bad ``-o`` fails at once.
+    ``progress``: a callable taking one line of text, told when the build starts and ends and
+    of the builders' stages (:mod:`geodem.build.progress`); None: silent."""
+    from geodem.build import progress as build_progress
+
     doc, cfg, name, resolved = validated(path, sets, backend)
-    need, avail = _check_memory(cfg, doc)
-    built = _build(cfg, doc)
+    chash = config_hash(resolved)
+    if run_dir is not None:
+        rdir = rd.RunDir(run_dir)
+        rdir.check(overwrite, resume)
+        if resume:
+            _check_resume_hash(rdir, doc.file, chash)
+    need, avail, n_est = _check_memory(cfg, doc)
+    m = cfg.model
+    if progress is not None:
+        dim = getattr(m, "dim", None)
+        progress(f"building model {m.type}: ~{n_est:,} elements"
+                 + (f", {dim}-D" if dim in (2, 3) else "") + " ...")
+    t0 = time.perf_counter()
+    with build_progress.listening(progress):
+        built = _build(cfg, doc)
+    if progress is not None:
+        progress(f"built model {m.type}: {built.state.n:,} elements in "
+                 f"{time.perf_counter() - t0:.1f} s")
     overlap = _check_initial_overlap(cfg, doc, built.state)
     dt, source, stable = _time_step(cfg, doc, built.state)
     info = _PlanInfo(dt, built.n_across)
@@ -349,8 +376,29 @@ def prepare(path, sets=(), backend: str | None = None) -> Prepared:
                 total_steps=total, n_elements=st.n, memory_bytes=need, memory_available=avail,
                 output_bytes=output, checkpoint_bytes=int(st.nbytes()) + 4096,
                 runtime_s=runtime, compile_s=compile_s, initial_overlap=overlap)
-    return Prepared(Path(path), doc, cfg, name, built, plan, resolved, config_hash(resolved),
-                    tuple(sets))
+    return Prepared(Path(path), doc, cfg, name, built, plan, resolved, chash, tuple(sets))
+
+
+def _changed_workflow(file, run_dir, new_hash, old_hash) -> WorkflowError:
+    return WorkflowError(ErrorItem(
+        file, None, "(config)",
+        f"the workflow changed since the run in {run_dir} started (config hash "
+        f"{new_hash[:12]} != {str(old_hash)[:12]}, compare with {Path(run_dir) / rd.CONFIG}); "
+        f"--resume continues only the same workflow, backend and --set values: start a new run "
+        f"(another -o, or --overwrite)"))
+
+
+def _check_resume_hash(rdir, file, chash) -> None:
+    """Refuse to resume a run of another workflow (before the build): the config hash of the
+    newest checkpoint marker that reads (Runner.run checks the one it resumes from again)."""
+    for marker in reversed(rdir.checkpoint_markers()):
+        try:
+            old = json.loads(marker.read_text()).get("config_hash")
+        except (OSError, ValueError, AttributeError):
+            continue
+        if old is not None and old != chash:
+            raise _changed_workflow(file, rdir.path, chash, old)
+        return
 
 
 def _quote(text: str) -> str:
@@ -773,13 +821,8 @@ class Runner:
                 self.notes.append(f"resumed from {npz.name}: newer checkpoint(s) damaged: "
                                   + "; ".join(f"{n} ({w})" for n, w in self.dir.damaged))
             if marker.get("config_hash") != prep.config_hash:
-                raise WorkflowError(ErrorItem(
-                    prep.doc.file, None, "(config)",
-                    f"the workflow changed since the run in {self.dir.path} started (config hash "
-                    f"{prep.config_hash[:12]} != {str(marker.get('config_hash'))[:12]}, "
-                    f"compare with {self.dir / rd.CONFIG}); --resume continues only the same "
-                    f"workflow, backend and --set values: start a new run (another -o, or "
-                    f"--overwrite)"))
+                raise _changed_workflow(prep.doc.file, self.dir.path, prep.config_hash,
+                                        marker.get("config_hash"))
             _check_unlocked(self.dir / rd.OUTPUT)
             if marker.get("complete"):
                 summary = self._read_summary()
@@ -1181,7 +1224,8 @@ def run_workflow(path, out_dir, *, sets=(), backend=None, resume=False, overwrit
 
     Returns ``(exit status, summary dict)``; raises WorkflowError for invalid input (exit 2).
     """
-    prep = prepare(path, sets=sets, backend=backend)
+    prep = prepare(path, sets=sets, backend=backend, run_dir=out_dir, overwrite=overwrite,
+                   resume=resume)
     runner = Runner(prep, out_dir, resume=resume, overwrite=overwrite,
                     stop_after_steps=stop_after_steps, progress=progress, console=console,
                     echo=echo)
