@@ -109,7 +109,9 @@ def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> 
     if isinstance(m, ScaledMicroMaterial):
         if m.dim is not None and m.dim != dim:
             raise ValueError(f"material {name!r} was calibrated in {m.dim}-D; the model is "
-                             f"{dim}-D (calibrate it for dim = {dim})")
+                             f"{dim}-D: calibrate it for dim = {dim}, or, to take these element "
+                             f"parameters in {dim}-D as they are (another rock: uncalibrated), "
+                             f"set its dim: {dim}")
         el = {k: getattr(m, k) for k in ("kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2", "mu")
               + STRUCTURE_KEYS if getattr(m, k) is not None}
         return SpecimenMaterial(m.rho, element=el, label="per-size element parameters")

@@ -685,6 +685,7 @@ def semantic_errors(cfg) -> list[tuple[tuple, str]]:
             out.append((("model",) + tuple(path),
                         f"unknown material {name!r}; defined materials: {defined}"))
     out += [(("model",) + tuple(p), m) for p, m in cfg.model.check(cfg)]
+    out += [p for p in _material_dim_problems(cfg) if p[1] not in {m for _, m in out}]
     sim = cfg.simulation
     if sim.monitor_every and sim.monitor_every % sim.check_every:
         out.append((("simulation", "monitor_every"),
@@ -708,6 +709,28 @@ def semantic_errors(cfg) -> list[tuple[tuple, str]]:
     for k, g in enumerate(frames.groups):
         if g not in groups:
             out.append((("outputs", "frames", "groups", k), unknown_group(g, groups)))
+    return out
+
+
+def _material_dim_problems(cfg) -> list:
+    """Per-size and library materials the model uses that have no values for the model's
+    dimension (``dim``): found here, before the model is built, rather than by the build."""
+    from geodem.workflow.labtests import specimen_material
+
+    dim = getattr(cfg.model, "dim", None)
+    if dim not in (2, 3):
+        return []
+    out = []
+    for _, name in cfg.model.material_refs():
+        mat = cfg.materials.get(name)
+        if not isinstance(mat, (ScaledMicroMaterial, LibraryMaterial)):
+            continue
+        try:
+            specimen_material(cfg, name, dim)
+        except ValueError as exc:
+            problem = (("materials", name), str(exc))
+            if problem not in out:
+                out.append(problem)
     return out
 
 
