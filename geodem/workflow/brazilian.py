@@ -556,7 +556,8 @@ class Brazilian(StepBase):
             res["plot"] = ctx.plot("brazilian.png", lambda p: _plot(
                 p, a[:, 2] * 1e3, a[:, 3] / 1e3, "platen displacement [mm]", "load P [kN]",
                 f"Brazilian test: sigma_t = 2P/(pi D t) = {res['tensile_strength'] / 1e6:.3g} "
-                f"MPa", pos[:, plane], log["type"], s.x[disc][:, plane]))
+                f"MPa", pos[:, plane], log["type"], s.x[disc][:, plane],
+                ("x", "y" if dim == 2 else "z")))
         return res
 
 
@@ -641,12 +642,14 @@ class DirectTension(PlatenTest):
             res["plot"] = ctx.plot("direct_tension.png", lambda p: _plot(
                 p, eps, sig / 1e6, "axial strain [-]", "tensile stress [MPa]",
                 f"direct tension: strength = {strength / 1e6:.3g} MPa", pos[:, xz],
-                log["type"], s.x[:, xz]))
+                log["type"], s.x[:, xz], ("x", "xyz"[ax])))
         return res
 
 
-def _plot(path, xs, ys, xlabel, ylabel, title, pos, types, x):
+def _plot(path, xs, ys, xlabel, ylabel, title, pos, types, x, map_axes=("x", "y")):
     """Curve (left) and crack map (right; cracks by type over the element centres)."""
+    from geodem.workflow.animation import label_map, legend_outside
+
     try:
         import matplotlib
 
@@ -661,7 +664,7 @@ def _plot(path, xs, ys, xlabel, ylabel, title, pos, types, x):
     a1.set_xlabel(xlabel)
     a1.set_ylabel(ylabel)
     a1.set_title(title)
-    a1.legend()
+    a1.legend(loc="best")
     a2.scatter(x[:, 0], x[:, 1], s=2, c="0.8")
     for code, col, name in ((1, "C0", "tensile"), (2, "C3", "shear"), (0, "C2", "joint")):
         sel = types == code
@@ -669,8 +672,8 @@ def _plot(path, xs, ys, xlabel, ylabel, title, pos, types, x):
             a2.scatter(pos[sel, 0], pos[sel, 1], s=6, c=col, label=f"{name} ({sel.sum()})")
     a2.set_aspect("equal")
     a2.set_title("cracks")
-    if len(types):
-        a2.legend(loc="upper right", fontsize="small")
+    label_map(a2, map_axes, fontsize=8)
+    legend_outside(a2)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -91,7 +91,7 @@ from pydantic import PrivateAttr
 from geodem.workflow.models import BuildError, BuiltModel, element_params, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, register_model, \
     register_step
-from geodem.workflow.animation import figure_rgb, pyplot, save_gif
+from geodem.workflow.animation import figure_rgb, label_map, pyplot, save_gif
 
 HISTORY = "collapse_history.csv"
 PROGRESS = "collapse.json"
@@ -838,8 +838,9 @@ def plot_snapshots(path, x0, r0, x1, r1, c, res, d):
     a2.axvline(ref, color="k", ls="--", lw=1.0,
                label=f"Lube et al. 2005: {res['reference']:.3g}")
     a2.set_title(f"final deposit (error {100 * res['rel_error']:.1f} %)", fontsize=9)
-    a2.legend(fontsize=7, loc="upper right")
-    a2.set_xlabel("x [m]")
+    a2.legend(fontsize=7, loc="best")
+    label_map(a2, fontsize=8)
+    a1.set_ylabel("y [m]", fontsize=8)  # x: shared with a2
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)
@@ -872,7 +873,7 @@ def plot_runout(path, mean, per=None):
     ax.set_xlim(0.0, aa[-1])
     ax.set_ylim(0.0, None)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="upper left")
+    ax.legend(fontsize=8, loc="best")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -924,7 +925,7 @@ def write_gif(path, frames, c, res, d):
         _frame_axes(ax, c, res, d)
         ax.set_title(f"a = {c['aspect_ratio']:.3g}, t = {float(z['time']) * 1e3:.0f} ms",
                      fontsize=8)
-        ax.set_yticks([])
+        label_map(ax, fontsize=7)
         fig.tight_layout()
         return figure_rgb(fig)
 

@@ -85,7 +85,8 @@ from geodem.workflow.landslide import CoarsenSpec
 from geodem.workflow.models import BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, Strict, StepBase, register_model, \
     register_step
-from geodem.workflow.animation import figure_rgb, gif_writer_missing, pick_frames, pyplot, save_gif
+from geodem.workflow.animation import figure_rgb, gif_writer_missing, label_map, legend_outside, \
+    pick_frames, pyplot, save_gif
 
 CURVE = "hydrofrac_curve.csv"
 COLUMNS = ("step", "time", "injection_pressure", "cracks_total", "cracks_tensile",
@@ -1109,8 +1110,7 @@ def _draw_frame(ax, z, centre, R, d, ref, vmax, cmap="viridis"):
     ax.set_xlim(x[:, 0].min() - d, x[:, 0].max() + d)
     ax.set_ylim(x[:, 1].min() - d, x[:, 1].max() + d)
     ax.set_aspect("equal")
-    ax.set_xticks([])
-    ax.set_yticks([])
+    label_map(ax, fontsize=6)
     ax.set_title(f"t = {float(z['time']) * 1e3:.3g} ms, P = {float(z['p_inj']) / 1e6:.3g} MPa\n"
                  f"{len(ci)} cracks", fontsize=7)
     return pc
@@ -1166,7 +1166,7 @@ def plot_history(path, a, t0, breakdown, hw):
     ax2.set_ylabel("cracks", color="C3")
     h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, fontsize=8, loc="upper left")
+    legend_outside(ax, h1 + h2, l1 + l2, fontsize=8, side="top")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

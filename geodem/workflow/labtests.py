@@ -486,6 +486,8 @@ class Uniaxial(PlatenTest):
 
 
 def _plot(path, eps, sig, E, ucs, peak_strain, pos, types, x, r):
+    from geodem.workflow.animation import label_map, legend_outside
+
     try:
         import matplotlib
 
@@ -505,7 +507,7 @@ def _plot(path, eps, sig, E, ucs, peak_strain, pos, types, x, r):
     a1.set_ylim(min(0.0, sig.min() / 1e6), 1.15 * ucs / 1e6)
     a1.set_xlabel("axial strain [-]")
     a1.set_ylabel("axial stress [MPa]")
-    a1.legend()
+    a1.legend(loc="best")
     a1.set_title("uniaxial compression")
     a2.scatter(x[:, 0], x[:, -1], s=2, c="0.8")
     for code, col, name in ((1, "C0", "tensile"), (2, "C3", "shear"), (0, "C2", "joint")):
@@ -514,8 +516,8 @@ def _plot(path, eps, sig, E, ucs, peak_strain, pos, types, x, r):
             a2.scatter(pos[sel, 0], pos[sel, -1], s=6, c=col, label=f"{name} ({sel.sum()})")
     a2.set_aspect("equal")
     a2.set_title("cracks")
-    if len(types):
-        a2.legend(loc="upper right", fontsize="small")
+    label_map(a2, ("x", "z" if x.shape[1] == 3 else "y"), fontsize=8)
+    legend_outside(a2)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

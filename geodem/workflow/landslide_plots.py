@@ -6,8 +6,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from geodem.workflow.animation import figure_rgb, pick_frames, pyplot, save_gif
 
+from geodem.workflow.animation import figure_rgb, label_map, legend_outside, pick_frames, \
+    pyplot, save_gif
 
 
 def velocity_history(path, a, res):
@@ -65,6 +66,7 @@ def _section_view(ax, ref, r, slide, xs, speed, info, vmax, title):
     ax.set_ylim(info["base_z"], max(ref[:, 1].max(), xs[:, 1].max()) + 3 * r.max())
     ax.set_aspect("equal")
     ax.set_title(title, fontsize=8)
+    label_map(ax, ("distance along the section", "elevation"), fontsize=7)
     return coll
 
 
@@ -75,6 +77,7 @@ def _plan_view(ax, ref, r, slide, xs, speed, vmax, title):
     sc = ax.scatter(xs[:, 0], xs[:, 1], s=3, c=speed, cmap="plasma", vmin=0, vmax=vmax, lw=0)
     ax.set_aspect("equal")
     ax.set_title(title, fontsize=8)
+    label_map(ax, fontsize=7)
     return sc
 
 
@@ -121,7 +124,7 @@ def deposit_map(path, dim, ref, r, slide, x0, x, moved, info, res):
         ax.set_aspect("equal")
         ax.set_xlabel("distance along the section [m]")
         ax.set_ylabel("elevation [m]")
-        ax.legend(fontsize=7, loc="upper right")
+        ax.legend(fontsize=7, loc="best")
     else:
         fig, ax = plt.subplots(figsize=(8, 5))
         ground = np.setdiff1d(np.arange(len(r)), slide)
@@ -133,11 +136,16 @@ def deposit_map(path, dim, ref, r, slide, x0, x, moved, info, res):
         ax.set_aspect("equal")
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
-        ax.legend(fontsize=7)
+        # the ground fills the plan: the legend goes above it (the colour bar is on the right)
+        legend_outside(ax, fontsize=7, side="top", markerscale=3)
     ta = res.get("travel_angle_deg")
-    ax.set_title(f"runout {res['runout_m']:.1f} m, travel angle "
-                 f"{'n/a' if ta is None else f'{ta:.1f}'} deg, max mean speed "
-                 f"{res['max_velocity']:.2g} m/s, H_c/L_c = {res['com_ratio']:.3g}", fontsize=9)
+    title = (f"runout {res['runout_m']:.1f} m, travel angle "
+             f"{'n/a' if ta is None else f'{ta:.1f}'} deg, max mean speed "
+             f"{res['max_velocity']:.2g} m/s, H_c/L_c = {res['com_ratio']:.3g}")
+    if dim == 2:
+        ax.set_title(title, fontsize=9)
+    else:
+        fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)

@@ -82,7 +82,8 @@ from geodem.fields import CoupledField, register_field
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, register_model, \
     register_step
-from geodem.workflow.animation import figure_rgb, pick_frames, pyplot, save_gif
+from geodem.workflow.animation import figure_rgb, label_map, legend_outside, pick_frames, \
+    pyplot, save_gif
 
 SQRT3 = math.sqrt(3.0)
 FRAMES_DIR = "seismic_frames"
@@ -903,8 +904,7 @@ def _speed_map(ax, z, d, vmax, title=True):
     pts = bbox.width * 72.0 / (hi[0] - lo[0]) * d  # one spacing in points
     sc = ax.scatter(x[:, 0], x[:, 1], c=z["speed"], s=(1.05 * pts) ** 2, marker="h",
                     linewidths=0, cmap="magma", vmin=0.0, vmax=vmax)
-    ax.set_xticks([])
-    ax.set_yticks([])
+    label_map(ax, fontsize=7)
     if title:
         ax.set_title(f"t = {float(z['time']) * 1e3:.1f} ms", fontsize=8)
     return sc
@@ -964,7 +964,7 @@ def plot_surface(path, t, a, xr, amp, info, amp_raw=None):
     ax2.plot([xr[k, 0]], [amp[k]], "k^", label=f"max {amp[k]:.2f} at x = {xr[k, 0]:.0f} m")
     h1, l1 = ax2.get_legend_handles_labels()
     h2, l2 = ax3.get_legend_handles_labels()
-    ax2.legend(h1 + h2, l1 + l2, fontsize=8, loc="upper left")
+    legend_outside(ax2, h1 + h2, l1 + l2, fontsize=8, side="top")
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path

@@ -74,7 +74,8 @@ from geodem.workflow.labtests import material_problems, specimen_material
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, Strict, register_model, \
     register_step
-from geodem.workflow.animation import figure_rgb, pick_frames, pyplot, save_gif
+from geodem.workflow.animation import figure_rgb, label_map, legend_outside, pick_frames, \
+    pyplot, save_gif
 
 CURVE = "tbm_forces.csv"
 COLUMNS = ("step", "time", "travel", "normal_force", "rolling_force", "side_force",
@@ -885,8 +886,7 @@ def _draw(ax, z):
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
-    ax.set_xticks([])
-    ax.set_yticks([])
+    label_map(ax, ("x", "y" if x.shape[1] == 2 else "z"), fontsize=7)
     ax.set_title(f"travel {float(z['travel']) * 1e3:.1f} mm, {len(z['ci'])} broken bonds",
                  fontsize=8)
 
@@ -930,7 +930,7 @@ def plot_forces(path, a, res, window):
     for w in window:
         a1.axvline(w * 1e3, color="k", ls=":", lw=0.8)
     a1.set_ylabel("force on the cutter [N]")
-    a1.legend(fontsize=7, loc="upper left")
+    a1.legend(fontsize=7, loc="best")
     a1.grid(alpha=0.3)
     a2.plot(t, a[:, 6], "C4-", lw=1)
     a2.set_ylabel("soft fraction")
@@ -963,8 +963,9 @@ def plot_energy(path, a, res):
     ax2.set_ylabel("broken bonds")
     h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, fontsize=7, loc="upper left")
-    ax.set_title(f"closure error {res['energy_closure_rel_error']:.2e}", fontsize=9)
+    # above the axes (twin axes: loc="best" would not see ax2's curves), with the closure error
+    legend_outside(ax, h1 + h2, l1 + l2, fontsize=7, side="top", ncol=3, title_fontsize=8,
+                   title=f"energy closure error {res['energy_closure_rel_error']:.2e}")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

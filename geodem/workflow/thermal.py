@@ -113,7 +113,8 @@ def crack_faces(x, r, i, j, axes=(0, 1)):
 
 def temperature_map(ax, x, r, T, crack_xy=None, vmin=None, vmax=None, title=""):
     """Elements coloured by temperature (discs to scale in data units) and cracks (segments
-    ``(k, 2, 2)``, see :func:`crack_faces`)."""
+    ``(k, 2, 2)``, see :func:`crack_faces`), counted in the title (a legend inside would cover
+    the map, one outside would sit on the colour bar)."""
     from matplotlib.collections import EllipseCollection
 
     coll = EllipseCollection(2 * r, 2 * r, np.zeros_like(r), units="xy", offsets=x,
@@ -127,7 +128,7 @@ def temperature_map(ax, x, r, T, crack_xy=None, vmin=None, vmax=None, title=""):
         # a broken bond is drawn as its crack face: a segment across the bond at the contact
         ax.add_collection(LineCollection(crack_xy, colors="cyan", linewidths=1.6,
                                          label=f"broken bonds ({len(crack_xy)})"))
-        ax.legend(loc="upper right", fontsize="small")
+        title = f"{title}\ncracks (cyan): {len(crack_xy)} broken bonds"
     pad = float(r.max())
     ax.set_xlim(x[:, 0].min() - pad, x[:, 0].max() + pad)
     ax.set_ylim(x[:, 1].min() - pad, x[:, 1].max() + pad)

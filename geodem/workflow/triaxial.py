@@ -95,7 +95,7 @@ from typing import Literal, Optional
 
 import numpy as np
 
-from geodem.workflow.animation import pyplot
+from geodem.workflow.animation import label_map, legend_outside, pyplot
 from geodem.workflow.labtests import (SpecimenMaterial, box_size_problems, material_problems,
                                       specimen_material)
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
@@ -1163,7 +1163,7 @@ def _plot_mohr(path, s3, s1, fit):
     ax.set_xlabel("normal stress [MPa]")
     ax.set_ylabel("shear stress [MPa]")
     ax.set_title("Mohr circles at the peaks")
-    ax.legend(fontsize="small", loc="upper left")
+    ax.legend(fontsize="small", loc="best")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -1174,7 +1174,7 @@ def _plot_cracks(path, x, spec, pos, types, s3):
     plt = pyplot()
     if plt is None:
         return None
-    fig, ax = plt.subplots(figsize=(5, 6))
+    fig, ax = plt.subplots(figsize=(6.4, 6))
     ax.scatter(x[spec, 0], x[spec, -1], s=3, c="0.8")
     ax.scatter(x[~spec, 0], x[~spec, -1], s=3, c="0.3")
     for code, col, name in ((1, "C0", "tensile"), (2, "C3", "shear"), (0, "C2", "joint")):
@@ -1183,8 +1183,8 @@ def _plot_cracks(path, x, spec, pos, types, s3):
             ax.scatter(pos[sel, 0], pos[sel, -1], s=8, c=col, label=f"{name} ({sel.sum()})")
     ax.set_aspect("equal")
     ax.set_title(f"cracks, last test (sigma3 = {s3 / 1e6:.3g} MPa)")
-    if len(types):
-        ax.legend(loc="upper right", fontsize="small")
+    label_map(ax, ("x", "z" if x.shape[1] == 3 else "y"), fontsize=8)
+    legend_outside(ax)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
