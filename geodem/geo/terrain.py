@@ -240,6 +240,43 @@ class TerrainModel:
     def n(self) -> int:
         return len(self.r)
 
+    def __repr__(self) -> str:
+        """One short line whatever the size (the generated dataclass repr printed every
+        array): size, element diameter, layers and masks with their counts, extent, base and
+        top, CRS, arrays."""
+        from geodem.core.state import _clip, array_summary
+        from geodem.geo.raster import _crs_label
+
+        try:
+            layer = np.asarray(self.layer)
+            layers = ", ".join(f"{nm} {int((layer == k).sum())}"
+                               for k, nm in enumerate(self.names))
+            masks = ", ".join(f"{nm} {int(np.count_nonzero(m))}" for nm, m in self.masks.items())
+            e = tuple(float(v) for v in self.extent)
+            if self.dim == 2:
+                where = f"section 0..{e[-1]:.6g} m"
+                if self.line is not None:
+                    (a, b), (c, d) = self.line
+                    where += f" along ({a:.6g}, {b:.6g})-({c:.6g}, {d:.6g})"
+            else:
+                where = f"extent x {e[0]:.6g}..{e[2]:.6g}, y {e[1]:.6g}..{e[3]:.6g} m"
+            parts = [f"dim={self.dim}", f"n={self.n}", f"d={self.d:.4g} m",
+                     _clip(f"layers [{layers}]", 120), _clip(f"masks [{masks}]", 120), where,
+                     f"base_z {float(self.base_z):.6g} m"]
+            if len(self.top_z):
+                lo, hi = float(np.min(self.top_z)), float(np.max(self.top_z))
+                parts.append(f"top {lo:.6g}..{hi:.6g} m")
+            md = self.metadata or {}
+            if md:
+                epsg = md.get("epsg", -1)
+                parts.append(f"EPSG:{epsg}" if epsg not in (None, -1)
+                             else _crs_label(md.get("crs")))
+            parts.append(array_summary({"x": self.x, "r": self.r, "layer": self.layer,
+                                        "top_z": self.top_z}, limit=120))
+            return f"TerrainModel({', '.join(parts)})"
+        except Exception as exc:  # noqa: BLE001 - a repr must not raise
+            return f"TerrainModel(<unprintable: {type(exc).__name__}>)"
+
     def group_order(self):
         """Group names from the lowest to the highest precedence (a State keeps the last)."""
         out = list(reversed(self.names)) + ["slide", "side_y", "side_x", "base"]

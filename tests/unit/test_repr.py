@@ -84,3 +84,44 @@ def test_repr_of_a_broken_state_does_not_raise(broken):
     st = _state(10)
     setattr(st, broken, None)
     assert repr(st).startswith("State(")
+
+
+def _hill(crs="EPSG:32632"):
+    z = np.add.outer(np.linspace(30.0, 20.0, 20), np.linspace(0.0, 2.0, 40))
+    return Terrain.from_array(z, 2.0, west=650000.0, south=5120000.0, crs=crs)
+
+
+def test_terrain_model_repr_is_short_and_names_the_counts():
+    from geodem.geo.terrain import Depth, terrain_model
+
+    m = terrain_model(_hill(), 1.0, base_depth=4.0, layers=[("soil", Depth(3.0))],
+                      sliding_surface=Depth(2.0), extent=(4.0, 6.0, 60.0, 34.0))
+    text = repr(m)
+    assert m.n > 5000 and len(text) < 600 and "\n" not in text
+    assert text.startswith(f"TerrainModel(dim=3, n={m.n}, d=1 m, layers [soil ")
+    soil = int((m.layer == m.names.index("soil")).sum())
+    body = int((m.layer == m.names.index("rock")).sum())
+    assert soil + body == m.n and f"layers [soil {soil}, rock {body}]" in text
+    assert f"slide {int(m.masks['slide'].sum())}" in text
+    assert f"base {int(m.masks['base'].sum())}" in text
+    assert "extent x 4..60, y 6..34 m" in text and f"base_z {m.base_z:.6g} m" in text
+    assert "EPSG:32632" in text and f"x ({m.n}, 3) f8" in text
+    assert str(m) == text
+
+
+def test_terrain_model_repr_of_a_section_names_its_line():
+    from geodem.geo.terrain import terrain_model
+
+    m = terrain_model(_hill(crs=None), 1.0, base_z=15.0, dim=2, line=((5.0, 20.0), (70.0, 20.0)))
+    text = repr(m)
+    assert text.startswith(f"TerrainModel(dim=2, n={m.n}, d=1 m, layers [rock {m.n}]")
+    assert "section 0..65 m along (5, 20)-(70, 20)" in text and "no CRS" in text
+    assert f"x ({m.n}, 2) f8" in text and "base_z 15 m" in text
+
+
+def test_terrain_model_repr_does_not_raise_when_broken():
+    from geodem.geo.terrain import terrain_model
+
+    m = terrain_model(_hill(), 2.0, base_depth=4.0)
+    m.extent = None
+    assert repr(m) == "TerrainModel(<unprintable: TypeError>)"
