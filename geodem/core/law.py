@@ -199,7 +199,9 @@ def rolling(nx, ny, nz, tx, ty, tz, mx, my, mz, kr, lim):
     ``t = dtheta_i - dtheta_j`` [rad], and is capped at ``|M| <= lim``.
 
     The caller gives ``Kr = Ks R*^2`` [N m/rad] and ``lim = mu_r R* max(-Fn, 0)`` [N m]
-    (``R* = R_i R_j/(R_i + R_j)``), so a contact in tension or apart holds no moment. Like the
+    (``R* = R_i R_j/(R_i + R_j)``), so a contact in tension or apart holds no moment; a bond
+    with moment-resisting bonds (``bond_moment`` b) has ``b R* F_b`` more, ``F_b`` its tensile
+    strength (Potyondy & Cundall 2004, Int. J. Rock Mech. 41(8), the parallel bond). Like the
     shear spring, every quantity changes sign exactly with the side, so ``j`` gets ``-M``.
 
     Returns ``(mx, my, mz, q)``: the new moment and the heat [J] of the step, the twist
