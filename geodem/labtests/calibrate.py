@@ -121,11 +121,34 @@ PRIOR = {
 }
 
 
-def prior_mu(dim: int, phi: float) -> tuple[float, float]:
+#: turning elements (the micro-structure's ``rotation``) with moment-resisting bonds: the
+#: entries that differ from :data:`PRIOR`. 2-D, measured on the library sandstone's element
+#: parameters with ``bond_moment`` 100 (docs/calibration.md, "Rotation and moment-resisting
+#: bonds"): against translation only, E x 0.93, Tu x 0.98, Cu x 0.62 at the same parameters;
+#: nu(s) = 0.265, 0.235, 0.122, 0.073, 0.028 at s = 0.50, 0.60, 0.75, 0.90, 1.10 (the
+#: prior sets s from the line through 0.60 and 0.75); phi = 35.4, 35.9, 37.8, 39.9 deg at mu
+#: = 0.15, 0.20, 0.25, 0.35 (the bonds' moment, not the contacts' friction, holds most of
+#: it), Cu x 1.14 from mu 0.15 to 0.35. 3-D: not measured, the translation prior.
+PRIOR_ROTATION = {
+    2: {"E": 2.75, "Tu": 4.6, "Cu": 12.8, "s_of_nu": (0.65, 0.20, -0.7), "dnu_ds": -0.7,
+        "phi_of_mu": ((0.15, 35.4), (0.35, 39.9)), "dlnCu_dlnmu": 0.15},
+}
+
+
+def prior_table(dim: int, structure: dict | None = None) -> dict:
+    """The prior rates and slopes for ``dim`` and the micro-structure (:data:`PRIOR`, with
+    :data:`PRIOR_ROTATION` over it for turning elements)."""
+    p = dict(PRIOR[dim])
+    if structure and structure.get("rotation"):
+        p.update(PRIOR_ROTATION.get(dim, {}))
+    return p
+
+
+def prior_mu(dim: int, phi: float, structure: dict | None = None) -> tuple[float, float]:
     """Contact friction for the friction angle ``phi`` [deg] from the prior table (linear in
     ln mu between its points, clamped at its ends) and the table's slope d phi / d ln mu there
     [deg]."""
-    table = PRIOR[dim]["phi_of_mu"]
+    table = prior_table(dim, structure)["phi_of_mu"]
     ln_mu = np.log([m for m, _ in table])
     phis = np.array([f for _, f in table])
     k = int(np.clip(np.searchsorted(phis, phi) - 1, 0, len(table) - 2))
@@ -230,14 +253,15 @@ def check_reachable(spec: CalibrationSpec) -> None:
 def prior_guess(spec: CalibrationSpec) -> dict:
     """Iteration 1: lattice conversion of the targets times the prior rates (per-size values)."""
     t = spec.targets
-    p = PRIOR[spec.dim]
+    p = prior_table(spec.dim, spec.structure)
     nu = min(max(t["nu"], -0.5), 0.19)
     mi = max(t["mu_i"], 1.0 / math.sqrt(8.0))
     mic = macro_to_micro(t["E"] * p["E"], nu, t["Tu"] * p["Tu"], t["Cu"] * p["Cu"], mi,
                          t["rho"], 1.0)
     el = per_size(mic.element, 1.0)
     if spec.friction:  # the measured phi(mu) table instead of the lattice's mu
-        el["mu"] = float(np.clip(prior_mu(spec.dim, friction_angle(t["mu_i"]))[0], *MU_RANGE))
+        phi_t = friction_angle(t["mu_i"])
+        el["mu"] = float(np.clip(prior_mu(spec.dim, phi_t, spec.structure)[0], *MU_RANGE))
     if p["s_of_nu"] is not None:
         s0, nu0, slope = p["s_of_nu"]
         s = float(np.clip(s0 + (t["nu"] - nu0) / slope, *S_RANGE))
@@ -403,7 +427,8 @@ def _solve_paired(J, rhs, x_last, bounds, scale):
     return x_last + d, at_bound
 
 
-def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=False):
+def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=False,
+                  structure=None):
     """The next ``u`` from all iterations so far.
 
     The two exact scalings leave five functions of the shape variables ``x = (s, ln rho_s, ln
@@ -425,7 +450,7 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=Fal
     on the isotropic 2-D packings nu at one ``s`` moved from 0.29 to 0.15 as rho_s fell from
     22 to 3.5, and four rocks did not converge.)"""
     U, Y = np.asarray(history_u, float), np.asarray(history_y, float)
-    p = PRIOR[dim]
+    p = prior_table(dim, structure)
     X = U[:, [1, 3, 4]]
     w = _weights(X[:, :2], SHAPE_SCALE[:2])  # mu is taken out by its held slope
     f_e = Y[:, 0] - U[:, 0]
@@ -441,8 +466,8 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=Fal
     rows = [g_nu, g_r]
     rhs = [y_target[1] - nu0, (y_target[3] - y_target[2]) - r0]
     bounds = [S_RANGE, tuple(np.log(RHO_RANGE)), tuple(np.log(MU_RANGE))]
-    phi = _phi_line(X[:, 2], Y[:, 4], y_target[4], prior_mu(dim, y_target[4])[1]) \
-        if friction else None
+    phi_slope = prior_mu(dim, y_target[4], structure)[1]
+    phi = _phi_line(X[:, 2], Y[:, 4], y_target[4], phi_slope) if friction else None
     if phi is not None:  # phi depends on mu alone on the manifold: a triangular system
         rows.append(np.array([0.0, 0.0, phi[1]]))
         rhs.append(y_target[4] - phi[0])
@@ -701,7 +726,8 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
             progress(it, rec)
         if rec["score"] <= 1.0:
             break
-        u, unreachable = next_unknowns(us, ys, y_t, spec.dim, spec.prefer, use_friction)
+        u, unreachable = next_unknowns(us, ys, y_t, spec.dim, spec.prefer, use_friction,
+                                         spec.structure)
         for key in unreachable:
             reachable[key] = False
         if _score(rec["measured"], tg, tol, reachable, keys) <= 1.0:  # what is left is met

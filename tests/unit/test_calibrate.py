@@ -207,3 +207,23 @@ def test_without_friction_the_lattice_mu_is_kept(tmp_path):
     out = C.calibrate(sp, tmp_path, measure_fn=frictional, friction_fn=friction_test)
     assert "phi" not in out["targets"]
     assert out["element"]["mu"] == pytest.approx(C.prior_guess(sp)["mu"])
+
+
+def test_turning_elements_take_the_rotation_prior():
+    """Moment-resisting bonds raise nu at a given ks / kn and hold most of the friction angle:
+    the first guess for turning elements takes ks / kn and mu from the rotation table."""
+    rot = {"packing": "isotropic", "rotation": True, "bond_moment": 100.0}
+    plain = C.prior_guess(spec(nu=0.2))
+    turning = C.prior_guess(C.CalibrationSpec(targets=dict(TARGETS, nu=0.2), structure=rot))
+    s0, nu0, _ = C.PRIOR_ROTATION[2]["s_of_nu"]
+    assert turning["ks_per_d"] / turning["kn_per_d"] == pytest.approx(s0, rel=1e-9)
+    assert plain["ks_per_d"] / plain["kn_per_d"] == pytest.approx(0.5, rel=1e-9)
+    # phi 35 deg: at the lower end of the table for turning elements (mu 0.15), beyond the
+    # upper end for translation only (mu 0.6)
+    sand = dict(TARGETS, mu_i=math.tan(math.radians(35.0)))
+    mu_rot = C.prior_guess(C.CalibrationSpec(targets=sand, structure=rot, friction=True))["mu"]
+    mu_plain = C.prior_guess(C.CalibrationSpec(targets=sand, friction=True))["mu"]
+    assert mu_rot == pytest.approx(0.15, rel=1e-6)
+    assert mu_plain == pytest.approx(0.6, rel=1e-6)
+    # 3-D has no rotation table yet: the translation prior
+    assert C.prior_table(3, rot) == C.PRIOR[3]
