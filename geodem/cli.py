@@ -14,6 +14,7 @@
     geodem calibrate MATERIAL -o DIR [--dim D] [--packing P] [--bond-gap G] [--bond-weibull M]
                      [--save]
     geodem rock MATERIAL -o DIR [--dim D] [--packing P] [--bond-gap G] [--bond-weibull M]
+                [--bond-moment B] [--rolling-friction MU] [--friction] [--packings N] [--seed S]
     geodem schema [-o FILE]
 
 Backend choice for a run: ``--backend`` > the workflow's ``backend:`` key (``geodem run``) >
@@ -747,9 +748,11 @@ def calibrate_cmd(
     "against the lab values; --friction also runs the calibration's two-stage triaxial test "
     "and prints the friction angle against atan(mu_i). --packing, --bond-gap, "
     "--bond-weibull, --bond-moment and --rolling-friction replace the stored "
-    "micro-structure, to see what each does.\n\n"
-    "Writes summary.json (measured, targets, element, structure) and the two runs into "
-    "-o DIR. Exit status: 0 done, 1 a run failed, 2 invalid input."))
+    "micro-structure, to see what each does; --packings N measures on N packings and prints "
+    "the scatter.\n\n"
+    "Writes summary.json (measured, targets, element, structure; with --packings, each "
+    "packing's and their mean and standard deviation) and the runs into -o DIR. Exit "
+    "status: 0 done, 1 a run failed, 2 invalid input."))
 @_guard
 def rock_cmd(
     material: MaterialArg,
@@ -763,13 +766,17 @@ def rock_cmd(
     rolling_friction: RollingFrictionOpt = None,
     friction: Annotated[bool, typer.Option("--friction", help="Also run the triaxial friction "
                                                               "test (two stages).")] = False,
+    packings: Annotated[int, typer.Option("--packings", min=1, max=20, help=(
+        "Measure on this many packings (seeds SEED, SEED+1, ...) and print each and their "
+        "mean and standard deviation."))] = 1,
+    seed: Annotated[Optional[int], typer.Option("--seed", min=0, help=(
+        "Packing seed of the first specimen (default: the calibration's)."))] = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
 ):
     import json
 
-    from geodem.labtests.calibrate import (CalibrationSpec, brazilian_check, friction_angle,
-                                           measure, measure_friction)
+    from geodem.labtests.calibrate import CalibrationSpec
     from geodem.materials import STRUCTURE_KEYS
     from geodem.materials_library import load_material
 
@@ -790,41 +797,85 @@ def rock_cmd(
     sp = cal.get("specimen", {})
     size = tuple(sp.get("ucs_size") or ((0.1, 0.1, 0.2) if dim == 3 else (0.1, 0.2)))
     structure = {k: el[k] for k in STRUCTURE_KEYS if k in el}
+    first = int(sp.get("seed", 0)) if seed is None else seed
     try:
-        spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim,
-                               d_mean=float(sp.get("d_mean", 0.01 if dim == 3 else 0.005)),
-                               ucs_size=size, seed=int(sp.get("seed", 0)), iterations=1,
-                               structure=structure)
+        specs = [CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim,
+                                 d_mean=float(sp.get("d_mean", 0.01 if dim == 3 else 0.005)),
+                                 ucs_size=size, seed=first + k, iterations=1,
+                                 structure=structure) for k in range(packings)]
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
     con = _out()
     con.print(f"measuring {mat.name} ({dim}-D, {structure}) -> {out}", highlight=False)
-    m = measure(spec, el, o)
-    b = brazilian_check(spec, el, o / "brazilian")
+    runs = []
+    for spec in specs:
+        folder = o if packings == 1 else o / f"packing_{spec.seed}"
+        runs.append(_rock_once(spec, el, folder, friction))
+        (folder / "summary.json").write_text(json.dumps(runs[-1], indent=2))
+        prefix = "" if packings == 1 else f"seed {spec.seed}: "
+        con.print(prefix + _rock_line(runs[-1]), highlight=False)
+    if packings > 1:
+        spread = _rock_spread(runs)
+        (o / "summary.json").write_text(json.dumps(
+            {"material": mat.name, "dim": dim, "structure": structure, "element": el,
+             "seeds": [r["seed"] for r in runs], "targets": runs[0]["targets"],
+             "target_phi": runs[0].get("target_phi"), "mean": spread["mean"],
+             "std": spread["std"], "packings": runs}, indent=2))
+        con.print("mean +- std over the packings: " + ", ".join(
+            f"{key} {spread['mean'][key]:.4g} +- {spread['std'][key]:.2g}"
+            for key in spread["mean"]), highlight=False)
+
+
+def _rock_once(spec, el, folder, friction: bool) -> dict:
+    """One packing of ``geodem rock``: the UCS, direct-tension and Brazilian runs (and the
+    friction test) in ``folder``; returns its summary."""
+    from geodem.labtests.calibrate import (brazilian_check, friction_angle, measure,
+                                           measure_friction)
+
+    m = measure(spec, el, folder)
+    b = brazilian_check(spec, el, folder / "brazilian")
     t = spec.targets
-    summary = {"material": mat.name, "dim": dim, "structure": structure, "element": el,
+    summary = {"material": spec.name, "dim": spec.dim, "seed": spec.seed,
+               "structure": spec.structure, "element": el,
                "measured": {k: m[k] for k in ("E", "nu", "Cu", "Tu")},
                "targets": {k: t[k] for k in ("E", "nu", "Cu", "Tu")},
                "ratio": m["Cu"] / m["Tu"], "target_ratio": t["Cu"] / t["Tu"],
                "brazilian": b, "wall_time_s": m["wall_time_s"] + b["wall_time_s"]}
-    phi_text = ""
     if friction:
-        f = measure_friction(spec, el, o / "triaxial")
-        phi_t = friction_angle(t["mu_i"])
-        summary.update(friction_test=f, target_phi=phi_t,
+        f = measure_friction(spec, el, folder / "triaxial")
+        summary.update(friction_test=f if math.isfinite(f["phi"]) else dict(f, phi=None),
+                       target_phi=friction_angle(t["mu_i"]),
                        wall_time_s=summary["wall_time_s"] + f["wall_time_s"])
-        phi_text = (f"; phi {f['phi']:.1f} deg ({f['phi'] - phi_t:+.1f})"
-                    if math.isfinite(f["phi"]) else "; phi: no confined peak")
-        if not math.isfinite(f["phi"]):
-            summary["friction_test"] = dict(f, phi=None)
-    (o / "summary.json").write_text(json.dumps(summary, indent=2))
-    con.print(f"E {m['E']:.4g} Pa ({m['E'] / t['E'] - 1:+.1%}), nu {m['nu']:.3f} "
-              f"({m['nu'] - t['nu']:+.3f}), Cu {m['Cu']:.4g} Pa ({m['Cu'] / t['Cu'] - 1:+.1%}), "
-              f"Tu {m['Tu']:.4g} Pa ({m['Tu'] / t['Tu'] - 1:+.1%}), Cu / Tu {summary['ratio']:.3g} "
-              f"(lab {summary['target_ratio']:.3g}); Brazilian {b['tensile_strength']:.4g} Pa "
-              f"({b['tensile_strength'] / t['Tu'] - 1:+.1%}){phi_text}; "
-              f"{summary['wall_time_s']:.0f} s", highlight=False)
+    return summary
 
+
+def _rock_line(r: dict) -> str:
+    """The line ``geodem rock`` prints for one packing: each value against the lab's."""
+    m, t, b = r["measured"], r["targets"], r["brazilian"]["tensile_strength"]
+    text = (f"E {m['E']:.4g} Pa ({m['E'] / t['E'] - 1:+.1%}), nu {m['nu']:.3f} "
+            f"({m['nu'] - t['nu']:+.3f}), Cu {m['Cu']:.4g} Pa ({m['Cu'] / t['Cu'] - 1:+.1%}), "
+            f"Tu {m['Tu']:.4g} Pa ({m['Tu'] / t['Tu'] - 1:+.1%}), Cu / Tu {r['ratio']:.3g} "
+            f"(lab {r['target_ratio']:.3g}); Brazilian {b:.4g} Pa ({b / t['Tu'] - 1:+.1%})")
+    if "friction_test" in r:
+        phi = r["friction_test"]["phi"]
+        text += (f"; phi {phi:.1f} deg ({phi - r['target_phi']:+.1f})" if phi is not None
+                 else "; phi: no confined peak")
+    return text + f"; {r['wall_time_s']:.0f} s"
+
+
+def _rock_spread(runs: list) -> dict:
+    """Mean and sample standard deviation over the packings of E, nu, Cu, Tu, Cu / Tu, the
+    Brazilian strength and (where every packing has one) phi."""
+    import numpy as np
+
+    cols = {k: [r["measured"][k] for r in runs] for k in ("E", "nu", "Cu", "Tu")}
+    cols["Cu/Tu"] = [r["ratio"] for r in runs]
+    cols["Brazilian"] = [r["brazilian"]["tensile_strength"] for r in runs]
+    phis = [r.get("friction_test", {}).get("phi") for r in runs]
+    if all(p is not None for p in phis):
+        cols["phi"] = phis
+    return {"mean": {k: float(np.mean(v)) for k, v in cols.items()},
+            "std": {k: float(np.std(v, ddof=1)) for k, v in cols.items()}}
 
 def _float_list(value: Optional[str], name: str, integer=False):
     if value is None:

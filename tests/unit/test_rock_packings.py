@@ -1,0 +1,75 @@
+"""`geodem rock --packings N`: one measurement per packing seed, and their mean and sample
+standard deviation (the runs are replaced by responses made up per seed)."""
+import json
+import math
+
+import pytest
+from typer.testing import CliRunner
+
+import geodem.labtests.calibrate as C
+from geodem.cli import app
+
+
+@pytest.fixture
+def fake_runs(monkeypatch):
+    def measure(spec, el, folder):
+        folder.mkdir(parents=True, exist_ok=True)
+        k = spec.seed
+        return {"E": 10e9 + 1e9 * k, "nu": 0.2 + 0.01 * k, "Cu": 60e6 + 2e6 * k,
+                "Tu": 4e6, "wall_time_s": 1.0}
+
+    def brazilian(spec, el, folder):
+        return {"tensile_strength": 4e6 * (1 + spec.seed), "over_target": 1.0 + spec.seed,
+                "crack_start_offset": 0.1, "stopped_by": "drop", "wall_time_s": 1.0}
+
+    def friction(spec, el, folder):
+        phi = math.inf if spec.seed == 99 else 30.0 + 2.0 * spec.seed
+        return {"phi": phi, "peak_0": 1.0, "peak_c": 2.0, "sigma3": 1.0, "wall_time_s": 1.0}
+
+    monkeypatch.setattr(C, "measure", measure)
+    monkeypatch.setattr(C, "brazilian_check", brazilian)
+    monkeypatch.setattr(C, "measure_friction", friction)
+
+
+def test_three_packings_give_each_seed_and_the_spread(tmp_path, fake_runs):
+    out = tmp_path / "r"
+    res = CliRunner().invoke(app, ["rock", "sandstone", "-o", str(out), "--packings", "3",
+                                   "--seed", "2", "--friction"])
+    assert res.exit_code == 0, res.output
+    for seed in (2, 3, 4):
+        assert f"seed {seed}:" in res.output
+        one = json.loads((out / f"packing_{seed}" / "summary.json").read_text())
+        assert one["seed"] == seed and one["friction_test"]["phi"] == 30.0 + 2.0 * seed
+    s = json.loads((out / "summary.json").read_text())
+    assert s["seeds"] == [2, 3, 4]
+    # E 12, 13, 14 GPa: mean 13, sample std 1; phi 34, 36, 38: mean 36, std 2
+    assert s["mean"]["E"] == pytest.approx(13e9) and s["std"]["E"] == pytest.approx(1e9)
+    assert s["mean"]["phi"] == pytest.approx(36.0) and s["std"]["phi"] == pytest.approx(2.0)
+    assert s["mean"]["Brazilian"] == pytest.approx(16e6)
+    assert s["mean"]["Cu/Tu"] == pytest.approx(16.5)  # Cu 64, 66, 68 MPa over 4 MPa
+    assert "mean +- std over the packings" in res.output
+
+
+def test_one_packing_keeps_the_single_summary(tmp_path, fake_runs):
+    out = tmp_path / "r"
+    res = CliRunner().invoke(app, ["rock", "sandstone", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    s = json.loads((out / "summary.json").read_text())
+    assert s["measured"]["E"] == pytest.approx(10e9) and "mean" not in s
+    assert not list(out.glob("packing_*"))
+
+
+def test_a_packing_without_a_confined_peak_leaves_phi_out_of_the_spread(tmp_path, fake_runs):
+    out = tmp_path / "r"
+    res = CliRunner().invoke(app, ["rock", "sandstone", "-o", str(out), "--packings", "2",
+                                   "--seed", "98", "--friction"])
+    assert res.exit_code == 0, res.output
+    assert "phi: no confined peak" in res.output
+    s = json.loads((out / "summary.json").read_text())
+    assert "phi" not in s["mean"] and s["packings"][1]["friction_test"]["phi"] is None
+
+
+@pytest.mark.parametrize("bad", [["--packings", "0"], ["--packings", "21"], ["--seed", "-1"]])
+def test_bad_packing_options_are_refused(tmp_path, bad):
+    res = CliRunner().invoke(app, ["rock", "sandstone", "-o", str(tmp_path / "x"), *bad])
+    assert res.exit_code == 2, res.output
