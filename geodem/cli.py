@@ -676,6 +676,10 @@ def calibrate_cmd(
                            "friction, with a two-stage triaxial test per iteration (without "
                            "it mu stays at the lattice value from mu_i; docs/calibration.md, "
                            "'Friction angle').")] = False,
+    packings: Annotated[int, typer.Option(
+        "--packings", min=1, max=10, help="Measure every iteration on this many packings "
+                                          "(seeds SEED, SEED+1, ...) and match their mean "
+                                          "(that many times the cost).")] = 1,
     backend: Annotated[Optional[str], typer.Option(
         "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
 ):
@@ -704,7 +708,8 @@ def calibrate_cmd(
         spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim, d_mean=d_mean,
                                ucs_size=size, seed=seed, iterations=iterations,
                                backend=backend, prefer=prefer, structure=structure,
-                               check_reach=not force, friction=friction)
+                               check_reach=not force, friction=friction,
+                               packings=packings)
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
     if not force:

@@ -63,7 +63,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -214,10 +214,16 @@ class CalibrationSpec:
     # neighbouring parameters) and a high mu makes the Brazilian disc crush-strong (2.05 x Tu
     # at mu 0.6 against 0.93 x at 0.4; docs/calibration.md, "Friction angle")
     friction: bool = False
+    # measure every iteration on this many packings (seeds seed, seed + 1, ...) and match
+    # their mean: the material rather than one packing (docs/calibration.md, "How much one
+    # packing decides"), at that many times the cost
+    packings: int = 1
 
     def __post_init__(self):
         if self.dim not in (2, 3):
             raise ValueError(f"dim = {self.dim!r}: allowed 2 or 3")
+        if not 1 <= int(self.packings) <= 10:
+            raise ValueError(f"packings = {self.packings!r}: allowed 1-10")
         if not 1 <= int(self.iterations) <= 20:
             raise ValueError(f"iterations = {self.iterations!r}: allowed 1-20")
         if self.prefer not in ("Cu", "Tu"):
@@ -643,6 +649,27 @@ def brazilian_check(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
             "stopped_by": r.get("stopped_by"), "wall_time_s": time.perf_counter() - t0}
 
 
+def over_packings(fn, spec: CalibrationSpec, el: dict, folder: Path) -> dict:
+    """``fn(spec, el, folder)`` (:func:`measure`, :func:`measure_friction` or
+    :func:`brazilian_check`) on each of ``spec.packings`` packings (seeds ``spec.seed``,
+    ``spec.seed + 1``, ... in ``folder/packing_SEED``): the mean of every number they return
+    (``wall_time_s`` summed; a phi of ``inf``, a confined stage without a peak, makes the mean
+    ``inf``), their sample standard deviations under ``scatter`` and the single results under
+    ``per_packing``. One packing: ``fn`` itself."""
+    if spec.packings == 1:
+        return fn(spec, el, folder)
+    runs = [fn(replace(spec, seed=spec.seed + k, packings=1), el,
+               Path(folder) / f"packing_{spec.seed + k}") for k in range(spec.packings)]
+    keys = [k for k, v in runs[0].items() if isinstance(v, (int, float)) and
+            not isinstance(v, bool) and all(isinstance(r.get(k), (int, float)) for r in runs)]
+    out = {k: float(np.mean([r[k] for r in runs])) for k in keys}
+    out["wall_time_s"] = float(sum(r["wall_time_s"] for r in runs))
+    out["scatter"] = {k: float(np.std([r[k] for r in runs], ddof=1)) for k in keys
+                      if k != "wall_time_s" and np.all(np.isfinite([r[k] for r in runs]))}
+    out["per_packing"] = runs
+    return out
+
+
 def _score(measured, targets, tol, reachable, keys=KEYS):
     """Largest error over tolerance of ``keys`` (nu and phi absolute, the others relative),
     leaving out the targets flagged out of reach; a phi not measured (or not peaked) counts
@@ -701,10 +728,10 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
     for it in range(1, int(spec.iterations) + 1):
         el = dict(from_unknowns(u), **spec.structure)
         folder = out / "iterations" / f"{it:02d}"
-        m = dict(measure_fn(spec, el, folder))
+        m = dict(over_packings(measure_fn, spec, el, folder))
         friction = None
         if use_friction and _score(m, tg, tol, reachable) <= FRICTION_GATE:
-            friction = friction_fn(spec, el, folder / "triaxial")
+            friction = over_packings(friction_fn, spec, el, folder / "triaxial")
             m["phi"] = friction["phi"]
             m["wall_time_s"] = m["wall_time_s"] + friction["wall_time_s"]
         y = _outputs(m)
@@ -713,6 +740,8 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
                "measured": {k: m.get(k) for k in keys},
                "rel_errors": rel, "nu_abs_error": m["nu"] - tg["nu"],
                "wall_time_s": m["wall_time_s"]}
+        if "scatter" in m:  # several packings: their spread
+            rec["scatter"] = m["scatter"]
         if use_friction:
             phi = m.get("phi")
             rec["phi_abs_error"] = (phi - tg["phi"] if phi is not None and math.isfinite(phi)
@@ -752,7 +781,7 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
     notes += _unreachable_notes(spec, tg, best, reachable)
     brazilian = None
     if not synthetic:  # the synthetic responses of the tests have no disc
-        brazilian = brazilian_check(spec, best["element"], out / "brazilian")
+        brazilian = over_packings(brazilian_check, spec, best["element"], out / "brazilian")
     wall = time.perf_counter() - t0
     summary = {
         "material": spec.name, "dim": spec.dim,
@@ -775,7 +804,8 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         "specimen": {"d_mean": spec.d_mean, "ucs_size": list(spec.ucs_size),
                      **spec.structure,
                      "disc_diameter": spec.disc_diameter, "distri_rate": spec.distri_rate,
-                     "seed": spec.seed, "strain_rate": spec.strain_rate,
+                     "seed": spec.seed, "packings": spec.packings,
+                     "strain_rate": spec.strain_rate,
                      "max_strain": spec.max_strain, "tensile_test": "direct_tension",
                      "friction_test": ({"kind": "triaxial", "sigma3_over_Cu":
                                         FRICTION_CONFINEMENT} if use_friction else None)},

@@ -2,6 +2,7 @@
 (E ∝ kn at fixed ks/kn, strengths ∝ breaking forces) and unknown nonlinear shape functions."""
 import json
 import math
+from pathlib import Path
 
 import pytest
 
@@ -227,3 +228,44 @@ def test_turning_elements_take_the_rotation_prior():
     assert mu_plain == pytest.approx(0.6, rel=1e-6)
     # 3-D has no rotation table yet: the translation prior
     assert C.prior_table(3, rot) == C.PRIOR[3]
+
+
+def test_several_packings_calibrate_their_mean(tmp_path):
+    """With packings = 3 every iteration measures seeds 0, 1 and 2 and matches their mean: a
+    packing that makes the rock 6 % stiffer and one 6 % softer cancel."""
+    seen = []
+
+    def by_seed(spec, el, folder):
+        seen.append((spec.seed, folder.name))
+        m = synthetic(spec, el, folder)
+        m["E"] *= 1.0 + 0.06 * (spec.seed - 1)  # seeds 0, 1, 2: -6 %, 0, +6 %
+        m["nu"] += 0.01 * (spec.seed - 1)
+        return m
+
+    sp = C.CalibrationSpec(targets=dict(TARGETS), name="synthetic", packings=3)
+    out = C.calibrate(sp, tmp_path, measure_fn=by_seed)
+    assert seen[:3] == [(0, "packing_0"), (1, "packing_1"), (2, "packing_2")]
+    assert out["converged"] and out["specimen"]["packings"] == 3
+    # the mean of the three is the synthetic packing's own response: the same result as one
+    one = C.calibrate(spec(), tmp_path / "one", measure_fn=synthetic)
+    assert out["element"]["kn_per_d"] == pytest.approx(one["element"]["kn_per_d"], rel=1e-9)
+    first = out["history"][0]
+    assert first["scatter"]["E"] == pytest.approx(0.06 * first["measured"]["E"], rel=1e-9)
+    assert first["scatter"]["nu"] == pytest.approx(0.01, rel=1e-9)
+
+
+def test_over_packings_keeps_a_missing_confined_peak():
+    def friction(spec, el, folder):
+        return {"phi": math.inf if spec.seed == 1 else 30.0, "peak_0": 1.0,
+                "peak_c": None if spec.seed == 1 else 2.0, "sigma3": 1.0, "wall_time_s": 2.0}
+
+    r = C.over_packings(friction, C.CalibrationSpec(targets=dict(TARGETS), packings=2), {},
+                        Path("x"))
+    assert math.isinf(r["phi"]) and "peak_c" not in r and r["wall_time_s"] == 4.0
+    assert "phi" not in r["scatter"] and len(r["per_packing"]) == 2
+
+
+@pytest.mark.parametrize("n", [0, 11])
+def test_packings_out_of_range_are_refused(n):
+    with pytest.raises(ValueError, match="packings"):
+        C.CalibrationSpec(targets=dict(TARGETS), packings=n)
