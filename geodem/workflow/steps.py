@@ -32,6 +32,7 @@ from geodem.workflow.schema import (
     F,
     Int,
     Name,
+    STEPS,
     StepBase,
     register_step,
     unknown_group,
@@ -419,28 +420,5 @@ def _plot(path, crit, osc, labels):
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
-# modules that register more models and step kinds (each is one module; nothing else changes)
-BUILTIN_MODULES = ("labtests",   # specimen, uniaxial
-                   "brazilian",  # brazilian_disc, brazilian, direct_tension
-                   "triaxial",   # triaxial_box, triaxial
-                   "thermal",    # thermal models and steps
-                   "hydrofrac",  # pore-fluid models and steps
-                   "collapse",   # granular column collapse
-                   "seismic",    # seismic valley, absorbing boundaries
-                   "landslide",  # landslide from an elevation raster
-                   "tbm")        # TBM disc cutter
-
-
-def _import_builtin_modules():
-    import importlib
-
-    for name in BUILTIN_MODULES:
-        mod = f"geodem.workflow.{name}"
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as exc:
-            if exc.name != mod:  # a missing dependency inside the module is a real error
-                raise
-
-
-_import_builtin_modules()
+# the case modules register more models and step kinds (list: geodem.registry.BUILTINS)
+STEPS.load_builtins()
