@@ -26,20 +26,20 @@ BUILTINS: dict[str, tuple[str, ...]] = {
     "fields": ("geodem.fields.thermal",
                "geodem.fields.pore",
                "geodem.fields.freeze",
-               "geodem.workflow.seismic",    # seismic_boundary
-               "geodem.workflow.tbm"),       # cutter_kinematics
+               "geodem.cases.seismic",    # seismic_boundary
+               "geodem.cases.tbm"),       # cutter_kinematics
     # workflow models and step kinds: the generic ones, then one module per case
     "workflow": ("geodem.workflow.models",
                  "geodem.workflow.steps",
-                 "geodem.workflow.labtests",   # specimen, uniaxial
-                 "geodem.workflow.brazilian",  # brazilian_disc, brazilian, direct_tension
-                 "geodem.workflow.triaxial",   # triaxial_box, triaxial
-                 "geodem.workflow.thermal",    # thermal models and steps
-                 "geodem.workflow.hydrofrac",  # pore-fluid models and steps
-                 "geodem.workflow.collapse",   # granular column collapse
-                 "geodem.workflow.seismic",    # seismic valley, absorbing boundaries
-                 "geodem.workflow.landslide",  # landslide from an elevation raster
-                 "geodem.workflow.tbm"),       # TBM disc cutter
+                 "geodem.cases.uniaxial",   # specimen, uniaxial
+                 "geodem.cases.brazilian",  # brazilian_disc, brazilian, direct_tension
+                 "geodem.cases.triaxial",   # triaxial_box, triaxial
+                 "geodem.cases.thermal",    # thermal models and steps
+                 "geodem.cases.hydrofrac",  # pore-fluid models and steps
+                 "geodem.cases.collapse",   # granular column collapse
+                 "geodem.cases.seismic",    # seismic valley, absorbing boundaries
+                 "geodem.cases.landslide",  # landslide from an elevation raster
+                 "geodem.cases.tbm"),       # TBM disc cutter
 }
 
 

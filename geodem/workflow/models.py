@@ -81,7 +81,7 @@ def element_params(cfg, name: str, d: float, dim: int, path=("material",)) -> di
         return dict(el, rho=mat.rho, mass=mic.mass)
     if not isinstance(mat, MicroMaterial):
         from geodem.materials import at_size
-        from geodem.workflow.labtests import specimen_material
+        from geodem.workflow.material import specimen_material
 
         try:
             sm = specimen_material(cfg, name, dim)

@@ -214,7 +214,7 @@ def _check_step_counts(doc, steps, dt) -> None:
 
 def _build(cfg, doc):
     from geodem.core.engine import validate_state
-    from geodem.workflow.labtests import apply_material_rotation
+    from geodem.workflow.material import apply_material_rotation
     from geodem.workflow.models import BuildError
 
     try:

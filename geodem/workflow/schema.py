@@ -708,7 +708,7 @@ def semantic_errors(cfg) -> list[tuple[tuple, str]]:
 def _material_dim_problems(cfg) -> list:
     """Per-size and library materials the model uses that have no values for the model's
     dimension (``dim``): found here, before the model is built, rather than by the build."""
-    from geodem.workflow.labtests import specimen_material
+    from geodem.workflow.material import specimen_material
 
     dim = getattr(cfg.model, "dim", None)
     if dim not in (2, 3):

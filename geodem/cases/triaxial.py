@@ -95,8 +95,9 @@ from typing import Literal, Optional
 
 import numpy as np
 
+from geodem.cases.common import needs_model, read_rows
 from geodem.workflow.animation import label_map, legend_outside, pyplot
-from geodem.workflow.labtests import (SpecimenMaterial, box_size_problems, material_problems,
+from geodem.workflow.material import (SpecimenMaterial, box_size_problems, material_problems,
                                       specimen_material)
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
@@ -719,10 +720,9 @@ class Triaxial(StepBase):
                                      "triaxial_cracks.png (needs matplotlib)")
 
     def check(self, cfg, groups):
-        out = []
-        if getattr(cfg.model, "type", None) != "triaxial_box":
-            out.append((("kind",), "triaxial needs the walls of model type triaxial_box (groups "
-                                   "xmin, xmax, [ymin, ymax,] bottom, top around a specimen)"))
+        out = needs_model(cfg, "triaxial_box", "triaxial needs the walls of model type triaxial_box"
+                                               " (groups xmin, xmax, [ymin, ymax,] bottom, top "
+                                               "around a specimen)")
         for k, p in enumerate(self.confining_pressures):
             if not (math.isfinite(p) and p >= 0):
                 out.append((("confining_pressures", k),
@@ -882,9 +882,7 @@ class _Run:
     def _read_rows(self, step):
         if not self.f_curves.exists():
             return []
-        with open(self.f_curves) as f:
-            return [[int(v) if k in INT_COLUMNS else float(v) for k, v in enumerate(r)]
-                    for r in list(csv.reader(f))[1:] if int(r[2]) <= step]
+        return read_rows(self.f_curves, step, INT_COLUMNS, step_column=2)
 
     # ------------------------------------------------------------------ one test
     def _test(self, k, s3, rec):
