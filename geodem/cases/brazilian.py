@@ -23,10 +23,10 @@
 
   - ``tensile_strength`` = ``2 P_peak / (pi D t)`` [Pa] (Hertz / Timoshenko: the horizontal
     stress at the centre of a disc loaded by two opposite point loads ``P``; it is tensile and
-    uniform along the loaded diameter), :func:`geodem.labtests.measure.brazilian_tensile_strength`;
+    uniform along the loaded diameter), :func:`geodem.measure.brazilian_tensile_strength`;
   - ``peak_load`` = ``P_peak`` [N];
   - ``crack_start_offset`` = mean distance of the first ``crack_k`` cracks from the disc centre /
-    radius (:func:`geodem.labtests.measure.crack_start_offset`; a crack sits at the midpoint of its
+    radius (:func:`geodem.measure.crack_start_offset`; a crack sits at the midpoint of its
     two elements in the built, undeformed disc, projected onto the disc plane); 0 = at the
     centre, 1 = at the rim. A valid test splits from the centre; values near 1 mean the disc
     was crushed under the platens first;
@@ -440,7 +440,7 @@ class Brazilian(StepBase):
 
     def execute(self, ctx):
         from geodem.core import groups, timestep
-        from geodem.labtests import measure
+        from geodem import measure
 
         st = ctx.state
         dim = st.dim
@@ -561,7 +561,7 @@ class DirectTension(PlatenTest):
 
     def execute(self, ctx):
         from geodem.core import groups
-        from geodem.labtests import measure
+        from geodem import measure
 
         st, ax, d, ref, top, bot, h0, height, area = self.platens(ctx)
         dim = st.dim

@@ -46,7 +46,7 @@ and the ``triaxial`` step.
   contact force by at most ``k_w v n dt``, so one update corrects at most ``alpha`` (< 1) of the
   stress error: stable, and the specimen behind the contacts only makes the step smaller.
 
-  **Measurements** (compression positive, :mod:`geodem.labtests.measure` convention), from the
+  **Measurements** (compression positive, :mod:`geodem.measure` convention), from the
   walls' inner surfaces (tangent planes of their elements) and contact reactions:
 
   - extents ``e_a`` = distance between the two walls normal to axis ``a`` (``h`` along the
@@ -65,7 +65,7 @@ and the ``triaxial`` step.
   Per test: peak ``sigma1`` (the strength at this sigma3), the strain at the peak, the tangent
   modulus ``E`` of ``q`` vs axial strain between 10 and 50 % of the peak deviator, the lateral
   stress at the peak, the consolidation report, cracks. Then the Mohr-Coulomb envelope through the
-  peaks, :func:`geodem.labtests.measure.mohr_coulomb_fit` (``sigma1 = C0 + q sigma3``, ``q =
+  peaks, :func:`geodem.measure.mohr_coulomb_fit` (``sigma1 = C0 + q sigma3``, ``q =
   (1 + sin phi) / (1 - sin phi)``, ``c = C0 (1 - sin phi) / (2 cos phi)``).
 
   summary.json gets ``cohesion`` [Pa], ``friction_angle_deg``, ``ucs_fit`` [Pa] (None when no fit
@@ -954,7 +954,7 @@ class _Run:
         self._save_progress()
 
     def _load(self, k, s3, rec):
-        from geodem.labtests import measure
+        from geodem import measure
 
         ctx, p, w = self.ctx, self.p, self.walls
         l0 = rec["load_start"]
@@ -1050,7 +1050,7 @@ class _Run:
 
     # ------------------------------------------------------------------ results
     def _finish(self, results):
-        from geodem.labtests import measure
+        from geodem import measure
 
         ctx, p = self.ctx, self.p
         s3_all = [r["sigma3"] for r in results]

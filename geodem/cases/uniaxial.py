@@ -9,7 +9,7 @@
   kinematically down at ``strain_rate`` x height, MatDEM's standard damping eta_c / N on (N =
   elements along the height), until the axial stress has dropped below ``drop`` x the peak after
   the peak, or the axial strain reaches ``max_strain``. Recorded every sample (compression
-  positive, :mod:`geodem.labtests.measure` convention):
+  positive, :mod:`geodem.measure` convention):
 
   - axial stress = mean of the top and bottom platen reactions / area; area = width^(dim-1),
     times a thickness in 2-D: ``thickness`` (default d_mean, the thickness the 2-D element
@@ -24,7 +24,7 @@
     elements from their centre, per lateral axis, averaged over the lateral axes;
   - crack counts by type.
 
-  Results: ``E`` (:func:`~geodem.labtests.measure.youngs_modulus`, 10-50 % of the peak), ``nu``
+  Results: ``E`` (:func:`~geodem.measure.youngs_modulus`, 10-50 % of the peak), ``nu``
   (same window), ``ucs``, ``peak_strain``, ``cracks_tensile``, ``cracks_shear`` (also at the top
   of summary.json); the curve goes to ``uniaxial_curve.csv`` and the picture to
   ``stress_strain.png``.
@@ -170,7 +170,7 @@ class Uniaxial(PlatenTest):
 
     def execute(self, ctx):
         from geodem.core import groups
-        from geodem.labtests import measure
+        from geodem import measure
 
         st, ax, d, ref, top, bot, h0, height, area = self.platens(ctx)
         dim = st.dim

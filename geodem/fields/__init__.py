@@ -16,7 +16,7 @@ Contract of a field (one contract test runs over every registered kind):
 * ``substep(sim, h)``: advance its own state by ``h`` seconds (``h <= safety * stable_dt``).
   Fields whose ``substep`` may be called directly refuse ``h > stable_dt`` with
   :func:`check_substep` (the thermal and pore fields; ``allow_unstable=True`` is for studies of
-  where the explicit scheme fails, :mod:`geodem.labtests.stability`).
+  where the explicit scheme fails, :mod:`geodem.studies.stability`).
 * ``config()``: JSON-able constructor keywords; ``arrays()`` / ``restore(arrays)``: its state for
   checkpoints (a run resumed from a checkpoint continues bit-identically on CPU).
 * ``summary()``: key results as numbers (merged into a workflow's summary by the steps that use it).

@@ -301,7 +301,7 @@ def consolidation(dt_fraction, resolution, backend, damping) -> Point:
 def ucs(dt_fraction, resolution, backend, damping) -> Point:
     """``workflows/ucs.yaml`` at ``resolution`` elements across the height; the reference is
     the material's calibration target (E and UCS)."""
-    from geodem.labtests.study import _targets
+    from geodem.studies.study import _targets
 
     wf = _repo_file("workflows/ucs.yaml")
     E_t, Cu_t, height = _targets(wf, "rock")
