@@ -29,7 +29,8 @@ BUILTINS: dict[str, tuple[str, ...]] = {
                "geodem.cases.seismic",    # seismic_boundary
                "geodem.cases.tbm"),       # cutter_kinematics
     # workflow models and step kinds: the generic ones, then one module per case
-    "workflow": ("geodem.workflow.models",
+    "workflow": ("geodem.cases.two_balls",     # two_balls, two_balls_check
+                 "geodem.workflow.models",
                  "geodem.workflow.steps",
                  "geodem.cases.uniaxial",   # specimen, uniaxial
                  "geodem.cases.brazilian",  # brazilian_disc, brazilian, direct_tension

@@ -174,7 +174,7 @@ def _resolve_backend(cfg, doc) -> str:
 def _check_memory(cfg, doc) -> tuple[int, int | None, int]:
     """``(bytes needed, bytes available or None, estimated elements)``; WorkflowError when the
     model would not fit."""
-    from geodem.bench import available_memory
+    from geodem.machine import available_memory
 
     m = cfg.model
     n = int(m.n_elements())
