@@ -23,6 +23,8 @@ import inspect
 
 import numpy as np
 
+from geodem.machine import available_memory
+
 DEFAULT_SIZES = (10_000, 100_000, 1_000_000)
 #: the whole-array NumPy reference is slow by design: it is only run up to this size
 NUMPY_MAX = 100_000
@@ -48,21 +50,6 @@ DENSITY = 2650.0
 
 class BenchError(ValueError):
     """Bad benchmark input (sizes, backends, steps); the message names the parameter."""
-
-
-def available_memory() -> int | None:
-    """Bytes of memory available for new allocations (``MemAvailable``), or None if unknown."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    try:
-        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return None
 
 
 def estimated_memory(n: int, copies: int = 1) -> int:

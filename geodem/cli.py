@@ -684,7 +684,7 @@ def calibrate_cmd(
         "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
 ):
 
-    from geodem.labtests.calibrate import (CalibrationSpec, UnreachableTarget, calibrate,
+    from geodem.studies.calibrate import (CalibrationSpec, UnreachableTarget, calibrate,
                                            check_reachable, save_calibration)
     from geodem.materials_library import load_material, material_path
 
@@ -781,7 +781,7 @@ def rock_cmd(
 ):
     import json
 
-    from geodem.labtests.calibrate import CalibrationSpec
+    from geodem.studies.calibrate import CalibrationSpec
     from geodem.materials import STRUCTURE_KEYS
     from geodem.materials_library import load_material
 
@@ -834,7 +834,7 @@ def rock_cmd(
 def _rock_once(spec, el, folder, friction: bool) -> dict:
     """One packing of ``geodem rock``: the UCS, direct-tension and Brazilian runs (and the
     friction test) in ``folder``; returns its summary."""
-    from geodem.labtests.calibrate import (brazilian_check, friction_angle, measure,
+    from geodem.studies.calibrate import (brazilian_check, friction_angle, measure,
                                            measure_friction)
 
     m = measure(spec, el, folder)
@@ -948,13 +948,13 @@ def study_cmd(
     save: Annotated[bool, typer.Option("--save", help="reach: store the chart in the "
                                                       "package.")] = False,
 ):
-    from geodem.labtests.study import ucs_study
+    from geodem.studies.study import ucs_study
 
     if kind == "reach":
         _reach(out, dim, s_values, rho_values, save, backend)
         return
     if kind == "friction":
-        from geodem.labtests.friction import describe, friction_study
+        from geodem.studies.friction import describe, friction_study
 
         con = _out()
         lib = "sandstone" if material == "rock" else material
@@ -964,13 +964,13 @@ def study_cmd(
         return
 
     if kind == "speed-accuracy":
-        from geodem.labtests.speed_accuracy import run_cli
+        from geodem.studies.speed_accuracy import run_cli
 
         run_cli(out, cases, quick, backend, _out(), lambda msg: _fail(msg, USER_ERROR))
         return
 
     if kind == "freeze":
-        from geodem.labtests.freeze_study import describe, freeze_study
+        from geodem.studies.freeze_study import describe, freeze_study
 
         con = _out()
         freeze_study(out, progress=lambda r: con.print(escape(describe(r)), highlight=False))
@@ -978,7 +978,7 @@ def study_cmd(
         return
 
     if kind == "graded":
-        from geodem.labtests.freeze_study import describe_graded, graded_study
+        from geodem.studies.freeze_study import describe_graded, graded_study
 
         con = _out()
         graded_study(out, progress=lambda r: con.print(escape(describe_graded(r)),
@@ -987,7 +987,7 @@ def study_cmd(
         return
 
     if kind == "stability":
-        from geodem.labtests.stability import describe, stability_study
+        from geodem.studies.stability import describe, stability_study
 
         con = _out()
         res = stability_study(out, backend=backend or "numba",
@@ -1037,7 +1037,7 @@ def study_cmd(
 def _reach(out, dim, s_values, rho_values, save, backend):
     from pathlib import Path
 
-    from geodem.labtests import reach
+    from geodem.studies import reach
 
     s_v = _float_list(s_values, "--s") if s_values else reach.DEFAULT_GRID[dim][0]
     r_v = _float_list(rho_values, "--rho") if rho_values else reach.DEFAULT_GRID[dim][1]

@@ -16,7 +16,15 @@ from __future__ import annotations
 
 import os
 
-BACKENDS: dict[str, type] = {}
+from geodem.registry import Registry
+
+
+def _named(cls, name):
+    cls.name = name
+    return cls
+
+
+BACKENDS: Registry = Registry("backend", builtins="backends", prepare=_named)
 ALLOWED = ("auto", "numba", "numpy", "cupy")
 
 
@@ -24,17 +32,8 @@ class BackendError(ValueError):
     """Unknown or unusable backend."""
 
 
-def register(name: str):
-    def deco(cls):
-        cls.name = name
-        BACKENDS[name] = cls
-        return cls
-
-    return deco
-
-
-def _load_all():
-    from geodem.backends import cupy_backend, numba_backend, numpy_ref  # noqa: F401
+register = BACKENDS.register
+_load_all = BACKENDS.load_builtins
 
 
 def available() -> list[str]:

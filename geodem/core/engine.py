@@ -211,7 +211,7 @@ class Simulation:
         of ``monitor_every``.
     allow_unstable_dt: skip the refusal of a ``dt`` above the (conservative) stability bound;
         only for studies that measure where the integration fails
-        (:mod:`geodem.labtests.stability`): the run then stops with InstabilityError.
+        (:mod:`geodem.studies.stability`): the run then stops with InstabilityError.
     """
 
     # the steps between two events (check, field, callback) in one backend call where the

@@ -16,7 +16,7 @@ Contract of a field (one contract test runs over every registered kind):
 * ``substep(sim, h)``: advance its own state by ``h`` seconds (``h <= safety * stable_dt``).
   Fields whose ``substep`` may be called directly refuse ``h > stable_dt`` with
   :func:`check_substep` (the thermal and pore fields; ``allow_unstable=True`` is for studies of
-  where the explicit scheme fails, :mod:`geodem.labtests.stability`).
+  where the explicit scheme fails, :mod:`geodem.studies.stability`).
 * ``config()``: JSON-able constructor keywords; ``arrays()`` / ``restore(arrays)``: its state for
   checkpoints (a run resumed from a checkpoint continues bit-identically on CPU).
 * ``summary()``: key results as numbers (merged into a workflow's summary by the steps that use it).
@@ -29,22 +29,21 @@ from typing import ClassVar
 
 import numpy as np
 
-FIELDS: dict[str, type] = {}
+from geodem.registry import Registry
+
+
+def _kinded(cls, kind):
+    cls.kind = kind
+    return cls
+
+
+FIELDS: Registry = Registry("coupled field", builtins="fields", prepare=_kinded,
+                            decorator="register_field")  # base set below CoupledField
 
 
 def register_field(kind: str):
     """Class decorator: register a coupled field (a :class:`CoupledField` subclass) as ``kind``."""
-
-    def deco(cls):
-        if not (isinstance(cls, type) and issubclass(cls, CoupledField)):
-            raise TypeError("register_field decorates CoupledField subclasses")
-        if kind in FIELDS and FIELDS[kind].__qualname__ != cls.__qualname__:
-            raise ValueError(f"coupled field {kind!r} is already registered")
-        cls.kind = kind
-        FIELDS[kind] = cls
-        return cls
-
-    return deco
+    return FIELDS.register(kind)
 
 
 def whole_number(name, v, lo, prefix="", why="", err=ValueError) -> int:
@@ -141,24 +140,17 @@ class CoupledField:
         return n
 
 
+FIELDS.base = CoupledField
+
+
 def field_from_config(kind: str, config: dict) -> CoupledField:
     """Re-create a registered field from its :meth:`CoupledField.config` (checkpoints)."""
-    load_builtin()
-    if kind not in FIELDS:
-        raise KeyError(f"unknown coupled field {kind!r}; registered: {sorted(FIELDS)}")
-    return FIELDS[kind](**config)
+    return FIELDS.lookup(kind)(**config)
 
 
 def load_builtin() -> None:
-    """Import the built-in fields (they register themselves)."""
-    import importlib
-
-    for mod in ("geodem.fields.thermal", "geodem.fields.pore", "geodem.fields.freeze"):
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as exc:  # a field module not written yet
-            if exc.name != mod:
-                raise
+    """Import the built-in fields (they register themselves; list: :data:`geodem.registry.BUILTINS`)."""
+    FIELDS.load_builtins()
 
 
 def pack_arrays(fields_list) -> dict:

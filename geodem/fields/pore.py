@@ -1068,7 +1068,7 @@ class PoreField(CoupledField):
         """One explicit Euler sub-step of ``h`` seconds. Called directly (not from
         :meth:`advance`, which sub-steps at ``safety`` x :meth:`stable_dt`), ``h`` above
         :meth:`stable_dt` is refused (FieldStabilityError) unless ``allow_unstable`` (studies of
-        where the scheme fails, :mod:`geodem.labtests.stability`)."""
+        where the scheme fails, :mod:`geodem.studies.stability`)."""
         if not (allow_unstable or self._advancing):
             check_substep(self, sim, h)
         t = self._t_sub + h

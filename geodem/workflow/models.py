@@ -11,7 +11,6 @@ A builder is a :class:`~geodem.workflow.schema.ModelBase` subclass registered wi
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
 from typing import Annotated, Literal, Optional
 
@@ -81,7 +80,7 @@ def element_params(cfg, name: str, d: float, dim: int, path=("material",)) -> di
         return dict(el, rho=mat.rho, mass=mic.mass)
     if not isinstance(mat, MicroMaterial):
         from geodem.materials import at_size
-        from geodem.workflow.labtests import specimen_material
+        from geodem.workflow.material import specimen_material
 
         try:
             sm = specimen_material(cfg, name, dim)
@@ -121,86 +120,6 @@ def concat_states(parts, shifts):
     arrays["x_ref"] = arrays["x_ref"] + shift
     return dataclasses.replace(base, **arrays, gravity=base.gravity.copy(),
                                groups=dict(base.groups))
-
-
-# ============================================================================ two_balls
-@register_model("two_balls")
-class TwoBalls(ModelBase):
-    """MatDEM's TwoBalls: ``wall - ball - ball - wall`` along x, bonded, both balls displaced by
-    ``amplitude`` so only the in-phase mode rings (a damped oscillator on one wall bond). One
-    independent copy per entry of ``damping_ratios``, side by side; copy ``LABEL`` has the groups
-    ``LABEL_walls`` (fixed) and ``LABEL_balls``."""
-
-    size_field = "damping_ratios"
-    example = {"type": "two_balls", "material": "rock"}
-    dim: Literal[2, 3] = F(2, description="Dimension")
-    diameter: float = F(1.0, unit="m", gt=0, description="Element diameter (and spacing)")
-    material: Name = F(..., description="Material name (a key of materials)")
-    amplitude: float = F(0.01, unit="m", gt=0,
-                         description="Initial displacement of both balls along x (< diameter/2)")
-    damping_ratios: dict[Name, float] = F(
-        {"critical": 1.0, "ten_percent": 0.1}, min_length=1, max_length=100,
-        description="One copy per entry: label -> damping ratio eta / eta_critical (>= 0)")
-
-    @model_validator(mode="after")
-    def _ratios(self):
-        for k, v in self.damping_ratios.items():
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"damping_ratios.{k} = {v!r}: allowed: a number >= 0 "
-                                 f"(1 = critical damping)")
-        return self
-
-    def n_elements(self):
-        return 4 * len(self.damping_ratios)
-
-    def bytes_per_element(self):
-        return 2 * state_bytes_per_element(self.dim, 4)
-
-    def material_refs(self):
-        return [(("material",), self.material)]
-
-    def group_names(self):
-        out = ["all"]
-        for label in self.damping_ratios:
-            out += [f"{label}_walls", f"{label}_balls"]
-        return out
-
-    def check(self, cfg):
-        if self.amplitude >= 0.5 * self.diameter:
-            return [(("amplitude",), f"amplitude {self.amplitude:g} m is not below half the "
-                                     f"diameter ({0.5 * self.diameter:g} m); allowed: "
-                                     f"0 < amplitude < diameter/2")]
-        return []
-
-    def build(self, cfg):
-        from geodem.cases import two_balls as tb
-
-        d = self.diameter
-        p = element_params(cfg, self.material, d, self.dim)
-        parts, shifts, cases, groups = [], [], {}, {"all": 0}
-        for k, (label, zeta) in enumerate(self.damping_ratios.items()):
-            st = tb.build(dim=self.dim, d=d, rho=p["rho"], kn=p["kn"], amplitude=self.amplitude,
-                          damping_ratio=zeta, xb=p["xb"], fs0=p["fs0"], mu=p["mu"])
-            st.ks[:] = p["ks"]
-            if p["mass"] is not None:
-                st.m[:] = p["mass"]
-                st.eta[[1, 2]] = zeta * 2.0 * math.sqrt(0.5 * p["kn"] * p["mass"])
-            gw, gb = 2 * k + 1, 2 * k + 2
-            groups[f"{label}_walls"], groups[f"{label}_balls"] = gw, gb
-            st.group[:] = np.array([gw, gb, gb, gw], np.int32)
-            an = tb.analytic(st)
-            cases[label] = {"damping_ratio": zeta, "analytic": an, "amplitude": self.amplitude,
-                            "walls": f"{label}_walls", "balls": f"{label}_balls"}
-            shift = np.zeros(self.dim)
-            shift[1] = 2.0 * d * k
-            parts.append(st)
-            shifts.append(shift)
-        state = concat_states(parts, shifts)
-        state.groups = groups
-        ref = state.x.copy()
-        balls = np.isin(state.group, [g for n, g in groups.items() if n.endswith("_balls")])
-        ref[balls, 0] -= self.amplitude  # rest positions
-        return BuiltModel(state, ref, 1.0, {"cases": cases, "diameter": d})
 
 
 # ============================================================================ lattice_block

@@ -174,7 +174,7 @@ def _resolve_backend(cfg, doc) -> str:
 def _check_memory(cfg, doc) -> tuple[int, int | None, int]:
     """``(bytes needed, bytes available or None, estimated elements)``; WorkflowError when the
     model would not fit."""
-    from geodem.bench import available_memory
+    from geodem.machine import available_memory
 
     m = cfg.model
     n = int(m.n_elements())
@@ -214,7 +214,7 @@ def _check_step_counts(doc, steps, dt) -> None:
 
 def _build(cfg, doc):
     from geodem.core.engine import validate_state
-    from geodem.workflow.labtests import apply_material_rotation
+    from geodem.workflow.material import apply_material_rotation
     from geodem.workflow.models import BuildError
 
     try:

@@ -36,6 +36,7 @@ from pydantic import (
     model_validator,
 )
 
+from geodem.registry import Registry
 from geodem.workflow.errors import ErrorItem, WorkflowError
 
 SCHEMA_VERSION = 1
@@ -321,8 +322,17 @@ Material = Annotated[
 
 
 # ============================================================================ registries
-STEPS: dict[str, type] = {}
-MODELS: dict[str, type] = {}
+def _workflow_changed():
+    workflow_model.cache_clear()
+
+
+# base classes are set below, once defined; the built-in modules: geodem.registry.BUILTINS
+STEPS: Registry = Registry("step kind", builtins="workflow", decorator="register_step",
+                           prepare=lambda cls, kind: _with_tag(cls, "kind", kind),
+                           on_change=_workflow_changed)
+MODELS: Registry = Registry("model type", builtins="workflow", decorator="register_model",
+                            prepare=lambda cls, name: _with_tag(cls, "type", name),
+                            on_change=_workflow_changed)
 
 
 class StepBase(Strict):
@@ -412,41 +422,24 @@ def _with_tag(cls, field_name: str, tag: str):
     return new
 
 
+STEPS.base = StepBase
+MODELS.base = ModelBase
+
+
 def register_step(kind: str):
     """Class decorator: register a step kind (a :class:`StepBase` subclass) under ``kind``."""
-
-    def deco(cls):
-        if not (isinstance(cls, type) and issubclass(cls, StepBase)):
-            raise TypeError("register_step decorates StepBase subclasses")
-        if kind in STEPS and STEPS[kind].__qualname__ != cls.__qualname__:
-            raise ValueError(f"step kind {kind!r} is already registered")
-        new = _with_tag(cls, "kind", kind)
-        STEPS[kind] = new
-        workflow_model.cache_clear()
-        return new
-
-    return deco
+    return STEPS.register(kind)
 
 
 def register_model(type_name: str):
     """Class decorator: register a model builder (a :class:`ModelBase` subclass)."""
-
-    def deco(cls):
-        if not (isinstance(cls, type) and issubclass(cls, ModelBase)):
-            raise TypeError("register_model decorates ModelBase subclasses")
-        if type_name in MODELS and MODELS[type_name].__qualname__ != cls.__qualname__:
-            raise ValueError(f"model type {type_name!r} is already registered")
-        new = _with_tag(cls, "type", type_name)
-        MODELS[type_name] = new
-        workflow_model.cache_clear()
-        return new
-
-    return deco
+    return MODELS.register(type_name)
 
 
 def load_builtins() -> None:
-    """Import the built-in model builders and step kinds (they register themselves)."""
-    from geodem.workflow import models, steps  # noqa: F401
+    """Import the built-in model builders and step kinds (they register themselves; the list:
+    :data:`geodem.registry.BUILTINS`)."""
+    STEPS.load_builtins()
 
 
 def _union(classes, field_name):
@@ -715,7 +708,7 @@ def semantic_errors(cfg) -> list[tuple[tuple, str]]:
 def _material_dim_problems(cfg) -> list:
     """Per-size and library materials the model uses that have no values for the model's
     dimension (``dim``): found here, before the model is built, rather than by the build."""
-    from geodem.workflow.labtests import specimen_material
+    from geodem.workflow.material import specimen_material
 
     dim = getattr(cfg.model, "dim", None)
     if dim not in (2, 3):

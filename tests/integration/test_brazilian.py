@@ -1,4 +1,4 @@
-"""Brazilian (indirect tension) and direct tension lab tests (geodem/workflow/brazilian.py,
+"""Brazilian (indirect tension) and direct tension lab tests (geodem/cases/brazilian.py,
 workflows/brazilian.yaml, workflows/direct_tension.yaml).
 
 Physics checked:
@@ -43,7 +43,7 @@ from geodem.workflow import WorkflowError, prepare
 from geodem.workflow.schema import load_builtins
 
 load_builtins()  # the built-in kinds first, in their usual order (the JSON schema lists them so)
-from geodem.workflow.brazilian import contact_stress, disc_stress  # noqa: E402
+from geodem.cases.brazilian import contact_stress, disc_stress  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 BRAZILIAN = ROOT / "workflows" / "brazilian.yaml"

@@ -217,7 +217,7 @@ def test_calibrate_bad_prefer(tmp_path):
 def test_calibrate_refuses_a_rock_outside_the_charted_region(tmp_path):
     import yaml
 
-    from geodem.labtests.reach import shipped_chart
+    from geodem.studies.reach import shipped_chart
 
     doc = yaml.safe_load((ROOT / "materials" / "sandstone.yaml").read_text())
     doc.pop("calibrated", None)

@@ -1,4 +1,4 @@
-"""Granular column collapse (geodem/workflow/collapse.py, workflows/column_collapse.yaml,
+"""Granular column collapse (geodem/cases/collapse.py, workflows/column_collapse.yaml,
 workflows/column_collapse_mean.yaml).
 
 Default suite: the reference law, the front detection and the mean over packings on hand-made
@@ -31,7 +31,7 @@ from typer.testing import CliRunner
 
 from geodem.cli import app
 from geodem.workflow import run_workflow
-from geodem.workflow.collapse import column_dims, deposit_front, lube_2005, packing_means
+from geodem.cases.collapse import column_dims, deposit_front, lube_2005, packing_means
 from geodem.workflow.schema import load_builtins
 
 load_builtins()

@@ -8,7 +8,7 @@ import pytest
 
 from geodem.core.engine import Simulation
 from geodem.fields.freeze import FreezeField
-from geodem.labtests.freeze_study import D, settled
+from geodem.studies.freeze_study import D, settled
 from tests.conftest import run_in_cuda_simulator
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
@@ -88,7 +88,7 @@ sys.path.insert(0, sys.argv[1])
 sys.path.insert(0, sys.argv[2])
 import numpy as np
 from geodem.core.engine import Simulation
-from geodem.labtests.freeze_study import pile
+from geodem.studies.freeze_study import pile
 out = {}
 for backend in ("cupy", "numba"):
     st = pile(nx=12, ny=4)

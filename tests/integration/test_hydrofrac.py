@@ -1,4 +1,4 @@
-"""Hydraulic fracturing (geodem/workflow/hydrofrac.py, workflows/hydraulic_fracturing*.yaml).
+"""Hydraulic fracturing (geodem/cases/hydrofrac.py, workflows/hydraulic_fracturing*.yaml).
 
 Default suite: the analysis helpers on hand-made input, and a small plate (0.1 m, ~400
 elements, the fast 2e9 Pa/s ramp) run end to end (summary keys, mass balance, pictures). Slow
@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from geodem.workflow import run_workflow
-from geodem.workflow.hydrofrac import (
+from geodem.cases.hydrofrac import (
     axis_misfit_deg,
     boundary_tractions,
     burst_samples,

@@ -1,5 +1,5 @@
 """The graded hydraulic-fracturing plate (``model.coarsen`` of ``hydrofrac_plate``,
-geodem/workflow/hydrofrac.py; docs/hydraulic_fracturing.md, "Large holes on a graded plate").
+geodem/cases/hydrofrac.py; docs/hydraulic_fracturing.md, "Large holes on a graded plate").
 
 Default suite (a few seconds): the elastic wall stress helper by hand, the per-point crack link,
 a tiny graded plate (fine elements around the hole, coarse ones at the edge, the element
@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 
 from geodem.build.graded import ramp
 from geodem.cli import app
-from geodem.workflow.hydrofrac import connected_cracks, wall_hoop_stress
+from geodem.cases.hydrofrac import connected_cracks, wall_hoop_stress
 from geodem.workflow.runner import prepare
 from geodem.workflow.schema import load_builtins
 

@@ -1,4 +1,4 @@
-"""Landslide from an elevation raster (geodem/workflow/landslide.py, workflows/landslide.yaml).
+"""Landslide from an elevation raster (geodem/cases/landslide.py, workflows/landslide.yaml).
 
 * metrics by hand: runout, travel angle and the mass-centre path of a made-up slide;
 * a tiny landslide (the shipped hill at scale 0.5: d = 6 m, ~840 elements, 56 slide
@@ -23,7 +23,7 @@ import pytest
 from typer.testing import CliRunner
 
 from geodem.cli import app
-from geodem.workflow.landslide import landslide_metrics, to_crs
+from geodem.cases.landslide import landslide_metrics, to_crs
 from geodem.workflow.schema import load_builtins
 
 load_builtins()

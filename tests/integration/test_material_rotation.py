@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from geodem.workflow import WorkflowError, prepare
-from geodem.workflow.labtests import material_rotation
+from geodem.workflow.material import material_rotation
 from geodem.workflow.models import BuildError
 from geodem.workflow.schema import ScaledMicroMaterial
 

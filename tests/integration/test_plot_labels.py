@@ -105,8 +105,8 @@ def _cracks(x, n):
 
 
 def test_uniaxial_and_brazilian_crack_maps(tmp_path, saved):
-    from geodem.workflow.brazilian import _plot as braz_plot
-    from geodem.workflow.labtests import _plot as ucs_plot
+    from geodem.cases.brazilian import _plot as braz_plot
+    from geodem.cases.uniaxial import _plot as ucs_plot
 
     x = _grid(20, 40, 0.0025)
     eps = np.linspace(0.0, 4e-3, 60)
@@ -123,7 +123,7 @@ def test_uniaxial_and_brazilian_crack_maps(tmp_path, saved):
 
 
 def test_triaxial_crack_map(tmp_path, saved):
-    from geodem.workflow.triaxial import _plot_cracks
+    from geodem.cases.triaxial import _plot_cracks
 
     x = _grid(24, 44, 0.0025)
     spec = (x[:, 0] > 0.004) & (x[:, 0] < 0.05) & (x[:, 1] > 0.004) & (x[:, 1] < 0.09)
@@ -134,7 +134,7 @@ def test_triaxial_crack_map(tmp_path, saved):
 
 
 def test_thermal_temperature_map(tmp_path, saved):
-    from geodem.workflow.thermal import _plot_heat, crack_faces
+    from geodem.cases.thermal import _plot_heat, crack_faces
 
     x = _grid(30, 34, 0.002)
     r = np.full(len(x), 1e-3)
@@ -152,7 +152,7 @@ def test_thermal_temperature_map(tmp_path, saved):
 def test_hydrofrac_pressure_maps(tmp_path, saved):
     from scipy.spatial import Delaunay
 
-    from geodem.workflow.hydrofrac import plot_pressure_maps
+    from geodem.cases.hydrofrac import plot_pressure_maps
 
     x = _grid(24, 28, 0.005)
     cells = Delaunay(x).simplices
@@ -169,7 +169,7 @@ def test_hydrofrac_pressure_maps(tmp_path, saved):
 
 
 def test_column_collapse_snapshots(tmp_path, saved):
-    from geodem.workflow.collapse import plot_snapshots
+    from geodem.cases.collapse import plot_snapshots
 
     x0 = _grid(10, 20, 0.005, lo=(0.0025, 0.0025))
     x1 = _grid(40, 5, 0.005, lo=(0.0025, 0.0025))
@@ -181,8 +181,8 @@ def test_column_collapse_snapshots(tmp_path, saved):
 
 
 def test_tbm_and_seismic_snapshots(tmp_path, saved):
-    from geodem.workflow.seismic import plot_snapshots as seismic_snapshots
-    from geodem.workflow.tbm import plot_snapshots as tbm_snapshots
+    from geodem.cases.seismic import plot_snapshots as seismic_snapshots
+    from geodem.cases.tbm import plot_snapshots as tbm_snapshots
 
     x = _grid(60, 15, 0.004)
     tbm, sei = [], []
@@ -202,7 +202,7 @@ def test_tbm_and_seismic_snapshots(tmp_path, saved):
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_landslide_snapshots_and_deposit(tmp_path, saved, dim):
-    from geodem.workflow.landslide_plots import deposit_map, snapshots
+    from geodem.cases.landslide_plots import deposit_map, snapshots
 
     s = np.linspace(0.0, 300.0, 400)
     top = 100.0 - 60.0 / (1.0 + np.exp(-(s - 150.0) / 30.0))
@@ -241,8 +241,8 @@ def test_landslide_snapshots_and_deposit(tmp_path, saved, dim):
 
 def test_legends_of_twin_axis_histories_sit_above_the_curves(tmp_path, saved):
     """Twin axes: loc="best" sees only one axes' curves; the legend goes above both."""
-    from geodem.workflow.hydrofrac import plot_history
-    from geodem.workflow.tbm import plot_energy
+    from geodem.cases.hydrofrac import plot_history
+    from geodem.cases.tbm import plot_energy
 
     t = np.linspace(0.0, 1e-3, 50)
     a = np.zeros((50, 13))

@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from geodem.workflow import run_workflow
-from geodem.workflow.seismic import Pulse, lattice_medium, run_column
+from geodem.cases.seismic import Pulse, lattice_medium, run_column
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
 ROOT = Path(__file__).resolve().parents[2]

@@ -107,7 +107,7 @@ def test_a_low_2d_box_is_as_well_bonded_as_a_square_one():
     # (docs/tbm_cutter.md). make_specimen packs such a box as a square and cuts it.
     from pathlib import Path
 
-    from geodem.workflow.labtests import specimen_material
+    from geodem.workflow.material import specimen_material
     from geodem.workflow.runner import validated
     from geodem.workflow.schema import load_builtins
 

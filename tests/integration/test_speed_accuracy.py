@@ -12,7 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from geodem.cli import app
-from geodem.labtests.speed_accuracy import COLUMNS, pareto_front
+from geodem.studies.speed_accuracy import COLUMNS, pareto_front
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
 

@@ -6,7 +6,7 @@ import pytest
 from geodem.build.lattice import bonded_state, triangular_lattice
 from geodem.core import timestep
 from geodem.core.engine import InstabilityError, Simulation
-from geodem.labtests import stability as S
+from geodem.studies import stability as S
 
 D = 0.01
 

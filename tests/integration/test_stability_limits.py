@@ -14,7 +14,7 @@ from geodem.core.engine import InstabilityError, Simulation
 from geodem.fields import FieldStabilityError
 from geodem.fields.pore import OIL_CF, OIL_KF, PoreField
 from geodem.fields.thermal import ThermalField
-from geodem.labtests import stability as S
+from geodem.studies import stability as S
 from geodem.workflow import WorkflowError, prepare, run_workflow
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")

@@ -1,4 +1,4 @@
-"""TBM disc cutter (geodem/workflow/tbm.py, workflows/tbm_cutter.yaml).
+"""TBM disc cutter (geodem/cases/tbm.py, workflows/tbm_cutter.yaml).
 
 Default suite: the layer function, the CSM formula, the disc's rim and its rolling kinematics
 on hand-made input; a tiny interbedded block (~200 elements, d_mean = 4 mm, R = 20 mm, p = 3
@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 from geodem.cli import app
 from geodem.workflow import run_workflow
 from geodem.workflow.schema import load_builtins
-from geodem.workflow.tbm import CutterKinematics, csm_forces, disc_rim, layer_of
+from geodem.cases.tbm import CutterKinematics, csm_forces, disc_rim, layer_of
 
 load_builtins()
 

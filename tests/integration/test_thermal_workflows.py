@@ -1,4 +1,4 @@
-"""Thermal workflows (geodem/workflow/thermal.py, workflows/thermal_rod.yaml,
+"""Thermal workflows (geodem/cases/thermal.py, workflows/thermal_rod.yaml,
 workflows/thermal_cracking.yaml).
 
 * the rod: a bonded chain with fixed end temperatures against the Fourier series of the heat

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from geodem.labtests import calibrate as C
+from geodem.studies import calibrate as C
 
 TARGETS = {"E": 15e9, "nu": 0.2, "Tu": 4e6, "Cu": 75e6, "mu_i": 0.9, "rho": 2400.0}
 

@@ -171,7 +171,7 @@ def test_uniform_field_gives_uniform_nominal_size():
 
 
 def test_graded_study_summary_by_hand():
-    from geodem.labtests.freeze_study import graded_markdown, graded_summary
+    from geodem.studies.freeze_study import graded_markdown, graded_summary
 
     def run(name, seed, n, steps, wall, runout):
         return {"run": name, "seed": seed, "elements": n, "element_steps": steps,

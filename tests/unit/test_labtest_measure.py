@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from geodem.labtests import (
+from geodem.measure import (
     brazilian_tensile_strength,
     crack_start_offset,
     mohr_coulomb_fit,

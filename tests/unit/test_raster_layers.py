@@ -78,7 +78,7 @@ def test_layer_on_the_same_geographic_grid(tmp_path):
 
 
 def test_workflow_reads_a_geographic_pair(tmp_path):
-    from geodem.workflow.landslide import read_terrains
+    from geodem.cases.landslide import read_terrains
 
     j, i = np.mgrid[0:24, 0:32]
     tr = from_origin(-122.3, 47.6, RES, RES)
@@ -181,7 +181,7 @@ def test_utm_pair_on_the_same_grid(tmp_path):
 
 def test_workflow_refuses_a_layer_smaller_than_the_elevation_raster(tmp_path):
     from geodem.geo import GeometryError
-    from geodem.workflow.landslide import read_terrains
+    from geodem.cases.landslide import read_terrains
 
     j, i = np.mgrid[0:24, 0:32]
     tr = from_origin(-122.3, 47.6, RES, RES)

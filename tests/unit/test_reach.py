@@ -4,9 +4,9 @@ import math
 
 import pytest
 
-from geodem.labtests.calibrate import (TOLERANCES, CalibrationSpec, UnreachableTarget,
+from geodem.studies.calibrate import (TOLERANCES, CalibrationSpec, UnreachableTarget,
                                        calibrate)
-from geodem.labtests.reach import outside_region, shipped_chart
+from geodem.studies.reach import outside_region, shipped_chart
 
 # a hand-made chart: Cu / Tu 8-20 at nu 0.1-0.3 (a square in (ln ratio, nu))
 CHART = {"dim": 2, "structure": {"packing": "isotropic"},
@@ -43,7 +43,7 @@ def test_another_micro_structure_is_not_judged_by_the_chart():
 
 
 def test_calibrate_refuses_before_writing_anything(tmp_path, monkeypatch):
-    import geodem.labtests.reach as reach
+    import geodem.studies.reach as reach
 
     monkeypatch.setattr(reach, "shipped_chart", lambda dim: CHART)
     spec = CalibrationSpec(targets=dict(ROCK, Cu=30 * ROCK["Tu"]), name="odd")
@@ -64,7 +64,7 @@ def test_the_shipped_charts_hold_every_library_rock(dim):
 
 
 def test_two_point_friction_angle_by_hand():
-    from geodem.labtests.friction import two_point_angle
+    from geodem.studies.friction import two_point_angle
 
     # K = (1 + sin 35) / (1 - sin 35) = 3.690: sigma1 rises by 36.90 MPa over 10 MPa
     k = (1 + math.sin(math.radians(35))) / (1 - math.sin(math.radians(35)))
@@ -76,7 +76,7 @@ def test_the_friction_study_changes_one_parameter_per_variant(tmp_path, monkeypa
     import yaml
 
     import geodem.workflow as wf
-    from geodem.labtests.friction import friction_study
+    from geodem.studies.friction import friction_study
     from geodem.materials_library import load_material
 
     seen = []

@@ -6,7 +6,7 @@ import math
 import pytest
 from typer.testing import CliRunner
 
-import geodem.labtests.calibrate as C
+import geodem.studies.calibrate as C
 from geodem.cli import app
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
-from geodem.workflow.seismic import (Pulse, boundary_sets, ground_smooth, lattice_E_nu,
+from geodem.cases.seismic import (Pulse, boundary_sets, ground_smooth, lattice_E_nu,
                                      lattice_medium, section_points)
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")

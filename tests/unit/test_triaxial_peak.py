@@ -1,8 +1,8 @@
-"""A triaxial stage has a peak only if its deviator came down after it (geodem.workflow.triaxial
+"""A triaxial stage has a peak only if its deviator came down after it (geodem.cases.triaxial
 .has_peaked); a curve still hardening at max_strain has none."""
 import numpy as np
 
-from geodem.workflow.triaxial import SOFTENED, has_peaked
+from geodem.cases.triaxial import SOFTENED, has_peaked
 
 
 def test_a_curve_still_hardening_at_max_strain_has_no_peak():

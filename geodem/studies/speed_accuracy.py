@@ -33,7 +33,7 @@ Cases (``error`` is always a relative error, >= 0):
   the calibration target of the material (calibrated at 40 across): ``max(|E / E_t - 1|, |UCS /
   Cu_t - 1|)``; three coarse resolutions only (seconds to tens of seconds per point).
 * ``column_collapse``: hook for the granular column collapse workflow (runout against the law
-  of Lube et al. 2005) once ``geodem/workflow/collapse.py`` is part of geodem; not in the default
+  of Lube et al. 2005) once ``geodem/cases/collapse.py`` is part of geodem; not in the default
   set.
 
 The engine is float64 only: every point is recorded with ``precision = float64``.
@@ -156,7 +156,7 @@ def lattice(dt_fraction, resolution, backend, damping) -> Point:
     from geodem.build.lattice import SQRT3_2, bonded_state, triangular_lattice
     from geodem.core import timestep
     from geodem.core.engine import Simulation
-    from geodem.workflow.brazilian import contact_stress
+    from geodem.cases.brazilian import contact_stress
 
     ny = int(resolution)
     H = 0.1
@@ -301,7 +301,7 @@ def consolidation(dt_fraction, resolution, backend, damping) -> Point:
 def ucs(dt_fraction, resolution, backend, damping) -> Point:
     """``workflows/ucs.yaml`` at ``resolution`` elements across the height; the reference is
     the material's calibration target (E and UCS)."""
-    from geodem.labtests.study import _targets
+    from geodem.studies.study import _targets
 
     wf = _repo_file("workflows/ucs.yaml")
     E_t, Cu_t, height = _targets(wf, "rock")
@@ -321,8 +321,8 @@ def column_collapse(dt_fraction, resolution, backend, damping) -> Point:
     import importlib.util
 
     wf = _repo_file("workflows/column_collapse.yaml")
-    if importlib.util.find_spec("geodem.workflow.collapse") is None or not wf.exists():
-        raise CaseUnavailable("column_collapse: geodem/workflow/collapse.py and "
+    if importlib.util.find_spec("geodem.cases.collapse") is None or not wf.exists():
+        raise CaseUnavailable("column_collapse: geodem/cases/collapse.py and "
                               "workflows/column_collapse.yaml are not in this version of geodem")
     sets = ["model.aspect_ratios=[1.0]", f"model.scale={float(resolution) / 10.0!r}",
             f"simulation.dt_fraction={dt_fraction!r}", f"steps.0.damping={damping!r}"]

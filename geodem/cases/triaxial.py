@@ -46,7 +46,7 @@ and the ``triaxial`` step.
   contact force by at most ``k_w v n dt``, so one update corrects at most ``alpha`` (< 1) of the
   stress error: stable, and the specimen behind the contacts only makes the step smaller.
 
-  **Measurements** (compression positive, :mod:`geodem.labtests.measure` convention), from the
+  **Measurements** (compression positive, :mod:`geodem.measure` convention), from the
   walls' inner surfaces (tangent planes of their elements) and contact reactions:
 
   - extents ``e_a`` = distance between the two walls normal to axis ``a`` (``h`` along the
@@ -65,7 +65,7 @@ and the ``triaxial`` step.
   Per test: peak ``sigma1`` (the strength at this sigma3), the strain at the peak, the tangent
   modulus ``E`` of ``q`` vs axial strain between 10 and 50 % of the peak deviator, the lateral
   stress at the peak, the consolidation report, cracks. Then the Mohr-Coulomb envelope through the
-  peaks, :func:`geodem.labtests.measure.mohr_coulomb_fit` (``sigma1 = C0 + q sigma3``, ``q =
+  peaks, :func:`geodem.measure.mohr_coulomb_fit` (``sigma1 = C0 + q sigma3``, ``q =
   (1 + sin phi) / (1 - sin phi)``, ``c = C0 (1 - sin phi) / (2 cos phi)``).
 
   summary.json gets ``cohesion`` [Pa], ``friction_angle_deg``, ``ucs_fit`` [Pa] (None when no fit
@@ -95,8 +95,9 @@ from typing import Literal, Optional
 
 import numpy as np
 
+from geodem.cases.common import needs_model, read_rows
 from geodem.workflow.animation import label_map, legend_outside, pyplot
-from geodem.workflow.labtests import (SpecimenMaterial, box_size_problems, material_problems,
+from geodem.workflow.material import (SpecimenMaterial, box_size_problems, material_problems,
                                       specimen_material)
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
@@ -719,10 +720,9 @@ class Triaxial(StepBase):
                                      "triaxial_cracks.png (needs matplotlib)")
 
     def check(self, cfg, groups):
-        out = []
-        if getattr(cfg.model, "type", None) != "triaxial_box":
-            out.append((("kind",), "triaxial needs the walls of model type triaxial_box (groups "
-                                   "xmin, xmax, [ymin, ymax,] bottom, top around a specimen)"))
+        out = needs_model(cfg, "triaxial_box", "triaxial needs the walls of model type triaxial_box"
+                                               " (groups xmin, xmax, [ymin, ymax,] bottom, top "
+                                               "around a specimen)")
         for k, p in enumerate(self.confining_pressures):
             if not (math.isfinite(p) and p >= 0):
                 out.append((("confining_pressures", k),
@@ -882,9 +882,7 @@ class _Run:
     def _read_rows(self, step):
         if not self.f_curves.exists():
             return []
-        with open(self.f_curves) as f:
-            return [[int(v) if k in INT_COLUMNS else float(v) for k, v in enumerate(r)]
-                    for r in list(csv.reader(f))[1:] if int(r[2]) <= step]
+        return read_rows(self.f_curves, step, INT_COLUMNS, step_column=2)
 
     # ------------------------------------------------------------------ one test
     def _test(self, k, s3, rec):
@@ -956,7 +954,7 @@ class _Run:
         self._save_progress()
 
     def _load(self, k, s3, rec):
-        from geodem.labtests import measure
+        from geodem import measure
 
         ctx, p, w = self.ctx, self.p, self.walls
         l0 = rec["load_start"]
@@ -1052,7 +1050,7 @@ class _Run:
 
     # ------------------------------------------------------------------ results
     def _finish(self, results):
-        from geodem.labtests import measure
+        from geodem import measure
 
         ctx, p = self.ctx, self.p
         s3_all = [r["sigma3"] for r in results]

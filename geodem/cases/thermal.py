@@ -40,6 +40,7 @@ from typing import Annotated, Literal, Optional
 import numpy as np
 from pydantic import Field, model_validator
 
+from geodem.cases.common import append_csv, write_csv
 from geodem.workflow.animation import pyplot
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
@@ -74,16 +75,6 @@ def _number(text: str):
         return float(text)
 
 
-def _write_csv(path, header, rows):
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        w.writerows(rows)
-
-
-def _append_csv(path, row):
-    with open(path, "a", newline="") as f:
-        csv.writer(f).writerow(row)
 
 
 
@@ -272,7 +263,7 @@ class Heat(StepBase):
         header = ["step", "time", "thermal_time", "T_min", "T_max", "T_mean", "broken_bonds"] + \
             [f"T_{g}" for g in probes]
         rows = _csv_rows(path, st.step) if ctx.resumed and path.exists() else []
-        _write_csv(path, header, rows)
+        write_csv(path, header, rows)
         if path.name not in ctx.runner.files:
             ctx.runner.files.append(path.name)
         t_start = (ctx.start_step + 0.5) * st.dt
@@ -288,7 +279,7 @@ class Heat(StepBase):
                    len(broken())] + [float(T[i].mean()) if i.size else math.nan
                                      for i in idx.values()]
             rows.append(row)
-            _append_csv(path, row)
+            append_csv(path, row)
 
         if not rows:
             record()
@@ -438,7 +429,7 @@ class ThermalRod(Heat):
                 f"L = {L:.4g} m, t = {t:.4g} s): max |T - T_exact| = {rel:.3e} x "
                 f"{scale:.4g} K ({'within' if res['passed'] else 'ABOVE'} {self.tolerance})")
         order = np.argsort(s)
-        _write_csv(ctx.out_dir / ROD_PROFILE, ["position", "T", "T_exact", "fixed"],
+        write_csv(ctx.out_dir / ROD_PROFILE, ["position", "T", "T_exact", "fixed"],
                    [[float(s[k]), float(f.T[k]), float(exact[k]), int(f.fixed_mask[k])]
                     for k in order])
         ctx.runner.files.append(ROD_PROFILE)
@@ -514,7 +505,7 @@ class BoreholePlate(ModelBase):
         return float(max(self.size) / self.d_mean) if self.size else 1.0
 
     def check(self, cfg):
-        from geodem.workflow.labtests import box_size_problems, material_problems
+        from geodem.workflow.material import box_size_problems, material_problems
 
         out = box_size_problems(self.size, 2, self.d_mean)
         if not out:
@@ -531,7 +522,7 @@ class BoreholePlate(ModelBase):
     def build(self, cfg):
         from geodem.core import groups as grp
         from geodem.core.engine import Simulation
-        from geodem.workflow.brazilian import plate_with_hole
+        from geodem.cases.brazilian import plate_with_hole
 
         seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
         n_across = self.n_across()

@@ -887,7 +887,7 @@ class LandslideStep(StepBase):
         frames = sorted(fdir.glob("frame_*.npz"))
         self._vtk(ctx, slide, frames, x0)
         if self.plot and ctx.cfg.outputs.plots:
-            from geodem.workflow.landslide_plots import deposit_map, snapshots, velocity_history
+            from geodem.cases.landslide_plots import deposit_map, snapshots, velocity_history
 
             res["plot_velocity"] = ctx.plot("landslide_velocity.png", lambda p: velocity_history(
                 p, a, res))
@@ -897,7 +897,7 @@ class LandslideStep(StepBase):
                 p, s.dim, ref, s.r, slide, frames, self.snapshots, info))
             if self.gif:
                 from geodem.workflow.animation import gif_writer_missing
-                from geodem.workflow.landslide_plots import animation
+                from geodem.cases.landslide_plots import animation
 
                 why = gif_writer_missing()
                 if why:

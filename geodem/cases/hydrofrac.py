@@ -3,7 +3,7 @@
 * model ``hydrofrac_plate``: a square bonded plate (``make_specimen`` box, side ``size``, group
   ``plate``) with an injection borehole of radius ``hole_radius`` cut at its centre (elements
   with centres inside removed, then elements left with fewer than two bonds, and balanced:
-  :func:`geodem.workflow.brazilian.prune_loose`). Groups: ``boundary`` (the elements within
+  :func:`geodem.cases.brazilian.prune_loose`). Groups: ``boundary`` (the elements within
   ``boundary_depth`` d_mean of the four outer faces) and ``wall`` (the elements within one
   d_mean of the borehole surface). 2-D thickness = ``d_mean`` (the 2-D area convention).
   ``coarsen: {factor, band, transition}`` (default off) builds a *graded* plate: fine elements
@@ -80,13 +80,14 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import model_validator
 
-from geodem.workflow.labtests import material_problems
-from geodem.workflow.landslide import CoarsenSpec
+from geodem.cases.common import frames_gif, needs_model, read_rows, write_csv
+from geodem.workflow.material import material_problems
+from geodem.cases.landslide import CoarsenSpec
 from geodem.workflow.models import BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, Strict, StepBase, register_model, \
     register_step
-from geodem.workflow.animation import figure_rgb, gif_writer_missing, label_map, legend_outside, \
-    pick_frames, pyplot, save_gif
+from geodem.workflow.animation import gif_writer_missing, label_map, legend_outside, pick_frames, \
+    pyplot
 
 CURVE = "hydrofrac_curve.csv"
 COLUMNS = ("step", "time", "injection_pressure", "cracks_total", "cracks_tensile",
@@ -207,7 +208,7 @@ class HydrofracPlate(ModelBase):
 
     def build(self, cfg):
         from geodem.core import groups as grp
-        from geodem.workflow.brazilian import plate_with_hole
+        from geodem.cases.brazilian import plate_with_hole
 
         seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
         graded = None
@@ -252,7 +253,7 @@ class HydrofracPlate(ModelBase):
         would make the coarse rings ``d_nom / d_mean`` times stiffer and stronger per unit
         length, and the stiff ring would shield the borehole wall: :func:`wall_hoop_stress`;
         docs/hydraulic_fracturing.md), and balanced; the borehole cut and the loose elements
-        pruned as in :func:`geodem.workflow.brazilian.plate_with_hole`. ``bonds: relaxed``
+        pruned as in :func:`geodem.cases.brazilian.plate_with_hole`. ``bonds: relaxed``
         (default): the packing is jammed to a mean contact overlap of ``RELAX_OVERLAP`` (0.1)
         x xb and pairs within ``CEMENT_GAP`` (0.1) x xb are bonded, as ``make_specimen``
         relaxes and bonds the uniform plate's and the calibration specimens' packings (a
@@ -271,8 +272,8 @@ class HydrofracPlate(ModelBase):
         from geodem.core.engine import Simulation
         from geodem.core.neighbors import spatial_sort
         from geodem.core.state import new_state
-        from geodem.workflow.brazilian import prune_loose
-        from geodem.workflow.labtests import SpecimenMaterial, specimen_material
+        from geodem.cases.brazilian import prune_loose
+        from geodem.workflow.material import SpecimenMaterial, specimen_material
         from geodem.workflow.models import BuildError
 
         d, c, centre = self.d_mean, self.coarsen, self.centre
@@ -671,10 +672,8 @@ class HydraulicFracturing(StepBase):
     plot: bool = F(True, description="Draw the pictures (needs matplotlib)")
 
     def check(self, cfg, groups):
-        out = []
-        if getattr(cfg.model, "type", None) != "hydrofrac_plate":
-            out.append((("kind",), "hydraulic_fracturing needs the plate with a borehole: use "
-                                   "model type hydrofrac_plate"))
+        out = needs_model(cfg, "hydrofrac_plate", "hydraulic_fracturing needs the plate with a "
+                                                  "borehole: use model type hydrofrac_plate")
         if self.boundary == "fixed" and (self.sigma_H or self.sigma_h):
             out.append((("sigma_H",), "far-field stresses need boundary: stress (a fixed "
                                       "boundary leaves the plate unstressed)"))
@@ -767,8 +766,8 @@ class HydraulicFracturing(StepBase):
         path = ctx.out_dir / CURVE
         rows = []
         if ctx.resumed and path.exists():
-            rows = _read_rows(path, st.step)
-        _write_rows(path, rows)
+            rows = read_rows(path, st.step, (0, 3, 4, 5, 6))
+        write_csv(path, COLUMNS, rows)
         fdir = ctx.out_dir / FRAMES_DIR
         fdir.mkdir(exist_ok=True)
         n_inj = total - confine
@@ -1074,23 +1073,6 @@ class PoreFlow(StepBase):
 
 
 # ============================================================================ io helpers
-def _read_rows(path, step):
-    with open(path) as f:
-        out = []
-        for r in list(csv.reader(f))[1:]:
-            if int(r[0]) <= step:
-                out.append([int(v) if k in (0, 3, 4, 5, 6) else float(v)
-                            for k, v in enumerate(r)])
-        return out
-
-
-def _write_rows(path, rows):
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(COLUMNS)
-        w.writerows(rows)
-
-
 # ============================================================================ pictures
 def _draw_frame(ax, z, centre, R, d, ref, vmax, cmap="viridis"):
     from matplotlib.collections import LineCollection, PolyCollection
@@ -1176,22 +1158,12 @@ def plot_history(path, a, t0, breakdown, hw):
 def write_gif(path, frames, centre, R, d, ref):
     """Animation of the pore-pressure maps: imageio if installed, else matplotlib's
     PillowWriter; returns None (skipped) when neither can write a GIF."""
-    plt = pyplot()
-    if plt is None:
-        return None
-    if not frames:
+    if pyplot() is None or not frames:
         return None
     data = [np.load(f) for f in frames]
     vmax = max(float(z["p_inj"]) for z in data) / 1e6 or 1.0
-    fig, ax = plt.subplots(figsize=(4.2, 4.2))
-    def render(z):
-        ax.clear()
-        _draw_frame(ax, z, centre, R, d, ref, vmax)
-        return figure_rgb(fig)
-
-    images = [render(z) for z in data]
-    plt.close(fig)
-    return save_gif(path, images, fps=7)
+    return frames_gif(path, data, (4.2, 4.2),
+                      lambda ax, z: _draw_frame(ax, z, centre, R, d, ref, vmax), fps=7)
 
 
 __all__ = ["HydrofracPlate", "HydraulicFracturing", "FluidSpec", "PoreFlow", "PoreFluidSpec",

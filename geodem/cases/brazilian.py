@@ -23,10 +23,10 @@
 
   - ``tensile_strength`` = ``2 P_peak / (pi D t)`` [Pa] (Hertz / Timoshenko: the horizontal
     stress at the centre of a disc loaded by two opposite point loads ``P``; it is tensile and
-    uniform along the loaded diameter), :func:`geodem.labtests.measure.brazilian_tensile_strength`;
+    uniform along the loaded diameter), :func:`geodem.measure.brazilian_tensile_strength`;
   - ``peak_load`` = ``P_peak`` [N];
   - ``crack_start_offset`` = mean distance of the first ``crack_k`` cracks from the disc centre /
-    radius (:func:`geodem.labtests.measure.crack_start_offset`; a crack sits at the midpoint of its
+    radius (:func:`geodem.measure.crack_start_offset`; a crack sits at the midpoint of its
     two elements in the built, undeformed disc, projected onto the disc plane); 0 = at the
     centre, 1 = at the rim. A valid test splits from the centre; values near 1 mean the disc
     was crushed under the platens first;
@@ -61,14 +61,13 @@ carried at the peak.
 """
 from __future__ import annotations
 
-import csv
 import math
 from typing import Literal, Optional
 
 import numpy as np
 
-from geodem.workflow.labtests import (PlatenTest, SpecimenMaterial, material_problems,
-                                      specimen_material)
+from geodem.cases.common import PlatenTest, append_csv, needs_model, read_rows, write_csv
+from geodem.workflow.material import SpecimenMaterial, material_problems, specimen_material
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
     F,
@@ -393,24 +392,6 @@ class BrazilianDisc(ModelBase):
 
 
 # ============================================================================ helpers
-def _read_rows(path, step, ints):
-    """Rows of a curve CSV up to ``step`` (resume)."""
-    with open(path) as f:
-        return [[int(v) if k in ints else float(v) for k, v in enumerate(r)]
-                for r in list(csv.reader(f))[1:] if int(r[0]) <= step]
-
-
-def _start_csv(path, columns, rows):
-    with open(path, "w", newline="") as f:
-        csv.writer(f).writerow(columns)
-        csv.writer(f).writerows(rows)
-
-
-def _append_csv(path, row):
-    with open(path, "a", newline="") as f:
-        csv.writer(f).writerow(row)
-
-
 def _crack_counts(log):
     return int((log["type"] == 1).sum()), int((log["type"] == 2).sum()), len(log)
 
@@ -451,17 +432,15 @@ class Brazilian(StepBase):
     plot: bool = F(True, description="Draw brazilian.png (needs matplotlib)")
 
     def check(self, cfg, groups):
-        if getattr(cfg.model, "type", None) != "brazilian_disc":
-            return [(("kind",), "brazilian needs the disc geometry: use model type "
-                                "brazilian_disc")]
-        return []
+        return needs_model(cfg, "brazilian_disc",
+                           "brazilian needs the disc geometry: use model type brazilian_disc")
 
     def planned_steps(self, plan):
         return max(1, int(math.ceil(self.max_strain / (self.loading_rate * plan.dt))))
 
     def execute(self, ctx):
         from geodem.core import groups, timestep
-        from geodem.labtests import measure
+        from geodem import measure
 
         st = ctx.state
         dim = st.dim
@@ -477,7 +456,7 @@ class Brazilian(StepBase):
         path = ctx.out_dir / BRAZILIAN_CURVE
         rows = []
         if ctx.resumed and path.exists():
-            rows = _read_rows(path, st.step, (0, 5, 6, 7))
+            rows = read_rows(path, st.step, (0, 5, 6, 7))
         if not ctx.resumed:
             v = [0.0] * dim
             v[ax] = -self.loading_rate * D
@@ -489,7 +468,7 @@ class Brazilian(StepBase):
                 groups.set_velocity(s, "top", v)
 
             ctx.decree(setup, "top")
-        _start_csv(path, BRAZILIAN_COLUMNS, rows)
+        write_csv(path, BRAZILIAN_COLUMNS, rows)
 
         def _split(log):
             """A crack within R/2 of the centre: the disc has split (a load drop without one
@@ -515,7 +494,7 @@ class Brazilian(StepBase):
             ct, cs, n = _crack_counts(log)
             row = [s.step, s.time, h0 - h, P, 2.0 * P / (math.pi * D * t), ct, cs, n]
             rows.append(row)
-            _append_csv(path, row)
+            append_csv(path, row)
             if row[3] > peak:
                 peak, ipeak = row[3], len(rows) - 1
             if _should_stop(rows, 3, ipeak, peak, self.drop) and _split(log):
@@ -582,17 +561,17 @@ class DirectTension(PlatenTest):
 
     def execute(self, ctx):
         from geodem.core import groups
-        from geodem.labtests import measure
+        from geodem import measure
 
         st, ax, d, ref, top, bot, h0, height, area = self.platens(ctx)
         dim = st.dim
         path = ctx.out_dir / TENSION_CURVE
         rows = []
         if ctx.resumed and path.exists():
-            rows = _read_rows(path, st.step, (0, 5, 6, 7))
+            rows = read_rows(path, st.step, (0, 5, 6, 7))
         if not ctx.resumed:
             self.start_loading(ctx, 1.0, height, d)
-        _start_csv(path, TENSION_COLUMNS, rows)
+        write_csv(path, TENSION_COLUMNS, rows)
         total = self.planned_steps(ctx.plan)
         chunk = max(1, total // self.samples)
         done = (st.step - ctx.start_step) // chunk * chunk
@@ -608,7 +587,7 @@ class DirectTension(PlatenTest):
             ct, cs, n = _crack_counts(ctx.sim.crack_log())
             row = [s.step, s.time, (h - h0) / h0, f / area, f, ct, cs, n]
             rows.append(row)
-            _append_csv(path, row)
+            append_csv(path, row)
             if row[3] > peak:
                 peak, ipeak = row[3], len(rows) - 1
             if _should_stop(rows, 3, ipeak, peak, self.drop):

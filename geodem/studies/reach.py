@@ -1,14 +1,14 @@
 """The reachable region of a packing: which (Cu / Tu, nu) a calibration can meet.
 
-The calibration's two exact scalings (module :mod:`geodem.labtests.calibrate`) leave nu and
+The calibration's two exact scalings (module :mod:`geodem.studies.calibrate`) leave nu and
 Cu / Tu functions of the shape variables only: ``s = ks / kn`` and ``rho_s = fs0 / (kn xb)``
 (per size), at a fixed micro-structure and friction ``mu`` (the charts use
 :data:`CHARTED_MU`, 0.25; more friction raises Cu, so for another mu the bounds are
 approximate).
 So the region is a map of that
 plane: :func:`reach_study` measures nu and Cu / Tu (UCS and direct tension of the calibration
-specimen, as :func:`geodem.labtests.calibrate.measure`) on a grid of ``(s, rho_s)`` and writes
-``reach.json`` and ``reach.png``. The shipped charts (``geodem/labtests/reach_2d.json``,
+specimen, as :func:`geodem.studies.calibrate.measure`) on a grid of ``(s, rho_s)`` and writes
+``reach.json`` and ``reach.png``. The shipped charts (``geodem/studies/reach_2d.json``,
 ``reach_3d.json``, regenerated with ``geodem study reach --dim D -o DIR --save``) let
 ``geodem calibrate`` refuse a target outside the region before the first iteration
 (:func:`outside_region`), with the measured bound.
@@ -58,7 +58,7 @@ def reach_study(dim: int, out_dir, s_values=None, rho_values=None, backend=None,
     mechanism near ``s = 0``: no E / nu fit, or a fitted nu beyond :data:`NU_LIMIT`) is kept
     with its error and left out of the region. The grid defaults to :data:`DEFAULT_GRID`.
     Returns the record written to ``reach.json``."""
-    from geodem.labtests.calibrate import CalibrationSpec, measure
+    from geodem.studies.calibrate import CalibrationSpec, measure
     from geodem.materials_library import load_material
 
     s_values = DEFAULT_GRID[dim][0] if s_values is None else s_values

@@ -88,10 +88,11 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import PrivateAttr
 
+from geodem.cases.common import frames_gif
 from geodem.workflow.models import BuildError, BuiltModel, element_params, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, register_model, \
     register_step
-from geodem.workflow.animation import figure_rgb, label_map, pyplot, save_gif
+from geodem.workflow.animation import label_map, pyplot
 
 HISTORY = "collapse_history.csv"
 PROGRESS = "collapse.json"
@@ -911,27 +912,21 @@ def plot_history(path, rows, cols, tau, n_ratios=None):
 
 def write_gif(path, frames, c, res, d):
     """Animation of one collapse (imageio, else matplotlib's PillowWriter)."""
-    plt = pyplot()
-    if plt is None or not frames:
+    if pyplot() is None or not frames:
         return None
     data = [np.load(f) for f in frames]
     xmax = max(res["runout_length"], c["L0"] * (1.0 + lube_2005(c["aspect_ratio"]))) + 2 * d
     w = min(9.0, max(4.0, 1.1 * xmax / max(c["H0"], 1e-300) * 2.2))
-    fig, ax = plt.subplots(figsize=(w, 2.6))
 
-    def render(z):
-        ax.clear()
+    def draw(ax, z):
         _discs(ax, z["x"].astype(float), z["r"].astype(float), c["floor_y"], "C1")
         _frame_axes(ax, c, res, d)
         ax.set_title(f"a = {c['aspect_ratio']:.3g}, t = {float(z['time']) * 1e3:.0f} ms",
                      fontsize=8)
         label_map(ax, fontsize=7)
-        fig.tight_layout()
-        return figure_rgb(fig)
+        ax.figure.tight_layout()
 
-    images = [render(z) for z in data]
-    plt.close(fig)
-    return save_gif(path, images, fps=8)
+    return frames_gif(path, data, (w, 2.6), draw, fps=8)
 
 
 __all__ = ["GranularColumn", "ColumnCollapse", "lube_2005", "column_dims", "deposit_front",

@@ -78,12 +78,12 @@ from typing import Literal, Optional
 
 import numpy as np
 
+from geodem.cases.common import frames_gif, needs_model
 from geodem.fields import CoupledField, register_field
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, register_model, \
     register_step
-from geodem.workflow.animation import figure_rgb, label_map, legend_outside, pick_frames, \
-    pyplot, save_gif
+from geodem.workflow.animation import label_map, legend_outside, pick_frames, pyplot
 
 SQRT3 = math.sqrt(3.0)
 FRAMES_DIR = "seismic_frames"
@@ -698,10 +698,9 @@ class SeismicWave(StepBase):
     plot: bool = F(True, description="Draw the pictures (needs matplotlib)")
 
     def check(self, cfg, groups):
-        out = []
-        if getattr(cfg.model, "type", None) != "valley_section":
-            out.append((("kind",), "seismic_wave needs the rock section: use model type "
-                                   "valley_section"))
+        out = needs_model(cfg, "valley_section",
+                          "seismic_wave needs the rock section: use model type valley_section")
+        if out:
             return out
         m = cfg.model
         try:
@@ -1004,23 +1003,12 @@ def plot_reference(path, ref, pulse):
 def write_gif(path, frames, d, vmax):
     """Animation of the particle-speed maps (imageio, else matplotlib's PillowWriter; None when
     neither can write a GIF)."""
-    plt = pyplot()
-    if plt is None:
-        return None
-    if not frames:
+    if pyplot() is None or not frames:
         return None
     x = np.load(frames[0])["x"]
     aspect = float(np.ptp(x[:, 1]) / max(np.ptp(x[:, 0]), 1e-300))
-    fig, ax = plt.subplots(figsize=(6.0, 6.0 * aspect + 0.4))
-
-    def render(f):
-        ax.clear()
-        _speed_map(ax, np.load(f), d, vmax)
-        return figure_rgb(fig)
-
-    images = [render(f) for f in frames]
-    plt.close(fig)
-    return save_gif(path, images, fps=8)
+    return frames_gif(path, frames, (6.0, 6.0 * aspect + 0.4),
+                      lambda ax, f: _speed_map(ax, np.load(f), d, vmax), fps=8)
 
 
 __all__ = ["ValleySection", "SeismicWave", "SeismicBoundary", "Pulse", "lattice_medium",

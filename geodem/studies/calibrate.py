@@ -247,7 +247,7 @@ class UnreachableTarget(ValueError):
 def check_reachable(spec: CalibrationSpec) -> None:
     """Raise :class:`UnreachableTarget` when ``spec.targets`` lie outside the region charted
     for ``spec.dim`` and its micro-structure (:func:`geodem.labtests.reach.outside_region`)."""
-    from geodem.labtests.reach import outside_region
+    from geodem.studies.reach import outside_region
 
     why = outside_region(spec.targets, spec.dim, spec.structure, spec.tolerances)
     if why:
@@ -622,7 +622,7 @@ def measure_friction(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
     returns ``phi`` [deg] (the two-point Mohr-Coulomb angle of the two peaks; ``math.inf``
     when the confined stage did not peak: the rock hardens there), the two peaks [Pa] and the
     wall time."""
-    from geodem.labtests.friction import two_point_angle
+    from geodem.studies.friction import two_point_angle
 
     t0 = time.perf_counter()
     r = _run(_triaxial_workflow(spec, el), folder, spec.backend)

@@ -69,13 +69,13 @@ from typing import Literal, Optional
 
 import numpy as np
 
+from geodem.cases.common import frames_gif, needs_model, read_rows, write_csv
 from geodem.fields import CoupledField, register_field
-from geodem.workflow.labtests import material_problems, specimen_material
+from geodem.workflow.material import material_problems, specimen_material
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, Strict, register_model, \
     register_step
-from geodem.workflow.animation import figure_rgb, label_map, legend_outside, pick_frames, \
-    pyplot, save_gif
+from geodem.workflow.animation import label_map, legend_outside, pick_frames, pyplot
 
 CURVE = "tbm_forces.csv"
 COLUMNS = ("step", "time", "travel", "normal_force", "rolling_force", "side_force",
@@ -127,7 +127,7 @@ def material_strengths(cfg, name: str, dim: int):
     """``(Cu, Tu, source)`` [Pa] of material ``name`` as the DEM reproduces it: the measured
     values of a library material's calibration record for ``dim``, else its laboratory values,
     else the rock properties; ``(None, None, reason)`` when unknown."""
-    from geodem.workflow.hydrofrac import material_tensile_strength
+    from geodem.cases.hydrofrac import material_tensile_strength
     from geodem.workflow.schema import LibraryMaterial, MacroMaterial
 
     Tu, src = material_tensile_strength(cfg, name, dim)
@@ -248,7 +248,7 @@ class TbmRock(ModelBase):
         return float(self.size[-1] / self.d_mean) if self.size else 1.0
 
     def check(self, cfg):
-        from geodem.workflow.labtests import box_size_problems
+        from geodem.workflow.material import box_size_problems
 
         out = box_size_problems(self.size, self.dim, self.d_mean)
         c = self.cutter
@@ -552,9 +552,10 @@ class DiscCutter(StepBase):
 
     def check(self, cfg, groups):
         m = cfg.model
-        if getattr(m, "type", None) != "tbm_rock":
-            return [(("kind",), "disc_cutter needs the rock and its cutter: use model type "
-                                "tbm_rock")]
+        wrong = needs_model(cfg, "tbm_rock",
+                            "disc_cutter needs the rock and its cutter: use model type tbm_rock")
+        if wrong:
+            return wrong
         reach = m.size[0] - (m.base_depth + 2.0) * m.d_mean
         if self.distance > reach:
             return [(("distance",), f"distance {self.distance:g} m would drive the disc into "
@@ -593,8 +594,8 @@ class DiscCutter(StepBase):
         w0 = 0.0  # the cutter is at rest before this step: its booked work starts at 0
         # ---------------------------------------------------------------- sampling
         path = ctx.out_dir / CURVE
-        rows = _read_rows(path, st.step) if ctx.resumed and path.exists() else []
-        _write_rows(path, rows)
+        rows = read_rows(path, st.step) if ctx.resumed and path.exists() else []
+        write_csv(path, COLUMNS, rows)
         fdir = ctx.out_dir / FRAMES_DIR
         fdir.mkdir(exist_ok=True)
         chunk = max(1, total // self.samples)
@@ -843,24 +844,12 @@ def _element_volume(st, idx, d_mean) -> float:
 
 
 # ============================================================================ io helpers
-def _read_rows(path, step):
-    with open(path) as f:
-        return [[float(v) for v in r] for r in list(csv.reader(f))[1:] if int(float(r[0])) <= step]
-
-
-def _write_rows(path, rows):
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(COLUMNS)
-        w.writerows(rows)
-
-
 # ============================================================================ pictures
 
 def _draw(ax, z):
     from matplotlib.collections import EllipseCollection, LineCollection
 
-    from geodem.workflow.thermal import crack_faces
+    from geodem.cases.thermal import crack_faces
 
     x, r = z["x"].astype(float), z["r"].astype(float)
     axes = [0, x.shape[1] - 1]
@@ -974,21 +963,7 @@ def plot_energy(path, a, res):
 
 def write_gif(path, frames):
     """Animation of the snapshots (imageio, else matplotlib's PillowWriter)."""
-    plt = pyplot()
-    if plt is None:
-        return None
-    if not frames:
-        return None
-    fig, ax = plt.subplots(figsize=(6.0, 2.4))
-
-    def render(f):
-        ax.clear()
-        _draw(ax, np.load(f))
-        return figure_rgb(fig)
-
-    images = [render(f) for f in frames]
-    plt.close(fig)
-    return save_gif(path, images, fps=7)
+    return frames_gif(path, frames, (6.0, 2.4), lambda ax, f: _draw(ax, np.load(f)), fps=7)
 
 
 __all__ = ["TbmRock", "DiscCutter", "CutterKinematics", "CutterSpec", "layer_of", "csm_forces",

@@ -1,0 +1,184 @@
+"""Materials of a workflow as the model builders need them: the material a specimen (or any
+model built at a mean element size) is made of, resolved from the workflow's ``materials:``
+section (macro, micro, per-size and library materials), its problems, and the element rotation
+a material asks for."""
+from __future__ import annotations
+
+
+
+from geodem.workflow.models import BuildError, BuiltModel
+from geodem.workflow.schema import MacroMaterial
+
+
+# ============================================================================ materials
+class SpecimenMaterial:
+    """What a specimen builder needs from a material: ``rho``, and either ``macro`` (rock
+    properties for ``macro_to_micro``) or ``element`` (size-free element parameters,
+    :func:`geodem.materials.per_size` keys); ``label`` says which, ``warnings`` what was
+    clamped."""
+
+    def __init__(self, rho, macro=None, element=None, label="", warnings=()):
+        self.rho, self.macro, self.element = float(rho), macro, element
+        self.label, self.warnings = label, tuple(warnings)
+
+    @property
+    def material(self) -> dict:
+        """The ``material`` argument of :func:`geodem.build.specimen.make_specimen`."""
+        return dict(self.macro) if self.macro else {"rho": self.rho}
+
+
+def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> SpecimenMaterial:
+    """Resolve ``cfg.materials[name]`` for a bonded specimen of dimension ``dim``.
+
+    * rock properties (``E, nu, ...``): lattice conversion (nu < 0.2 needed: at 0.2 the
+      shear springs vanish and a random packing is a mechanism);
+    * per-size element parameters (``kn_per_d, ...``, e.g. from ``geodem calibrate``);
+    * ``{library: NAME}``: the library file's calibration for ``dim`` (``use: auto`` or
+      ``calibrated``; an error where there is none), or with ``use: lattice`` its laboratory
+      values on the lattice (clamped, with warnings);
+    * element parameters (``kn, ks, xb, fs0, mu``) for an element of diameter ``d_mean`` (needs
+      ``d_mean``; unset ``xb``/``fs0``: unbreakable), scaled to the other sizes by
+      ``kn, ks, xb ∝ d``, ``fs0 ∝ d^2``.
+
+    Raises ``ValueError`` with the reason (the callers turn it into a field error)."""
+    from geodem.materials_library import load_material, to_micro
+    from geodem.workflow.schema import LibraryMaterial, ScaledMicroMaterial
+
+    from geodem.materials import STRUCTURE_KEYS, per_size
+    from geodem.workflow.schema import MicroMaterial
+
+    m = cfg.materials[name]
+    if isinstance(m, MicroMaterial) and d_mean is not None:
+        el = {"kn": m.kn, "ks": m.ks, "xb": m.xb if m.xb is not None else 1.0e6 * d_mean,
+              "fs0": m.fs0 if m.fs0 is not None else 1.0e12, "mu": m.mu,
+              **{k: getattr(m, k) for k in STRUCTURE_KEYS if getattr(m, k) is not None}}
+        return SpecimenMaterial(m.rho, element=per_size(el, d_mean),
+                                label=f"element parameters at d = {d_mean:g} m")
+    if isinstance(m, MacroMaterial):
+        if m.nu >= 0.2:
+            raise ValueError(f"material {name!r} has nu = {m.nu:g}: macro_to_micro then gives "
+                             "ks = 0, and a random packing without shear springs is a mechanism "
+                             "(it never balances); allowed for a specimen: nu < 0.2, or "
+                             "calibrated parameters")
+        macro = {k: getattr(m, k) for k in ("E", "nu", "Tu", "Cu", "mu_i", "rho")}
+        return SpecimenMaterial(m.rho, macro=macro, label="lattice conversion")
+    if isinstance(m, ScaledMicroMaterial):
+        if m.dim is not None and m.dim != dim:
+            raise ValueError(f"material {name!r} was calibrated in {m.dim}-D; the model is "
+                             f"{dim}-D: calibrate it for dim = {dim}, or, to take these element "
+                             f"parameters in {dim}-D as they are (another rock: uncalibrated), "
+                             f"set its dim: {dim}")
+        el = {k: getattr(m, k) for k in ("kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2", "mu")
+              + STRUCTURE_KEYS if getattr(m, k) is not None}
+        return SpecimenMaterial(m.rho, element=el, label="per-size element parameters")
+    if isinstance(m, LibraryMaterial):
+        try:
+            lib = load_material(m.library)
+        except Exception as exc:  # noqa: BLE001 - MaterialError / FileNotFoundError: reported
+            raise ValueError(str(exc)) from None
+        cal = (lib.calibrated or {}).get(f"{dim}d") if m.use != "lattice" else None
+        if cal is not None:
+            return SpecimenMaterial(lib.values()["rho"], element=dict(cal["element"]),
+                                    label=f"{lib.name}: calibrated ({dim}-D)")
+        if m.use != "lattice":
+            # no silent fallback: the lattice conversion is another rock (a 3-D sandstone on it
+            # gave E 1.6 GPa for 15, nu 1.1), so it is taken only when asked for
+            raise ValueError(f"library material {lib.name!r} has no {dim}-D calibration; "
+                             f"calibrate it with 'geodem calibrate {m.library} --dim {dim} "
+                             f"--save', or set use: lattice to take its laboratory values on "
+                             f"the close-packed lattice (nu and mu_i clamped to the lattice's "
+                             f"limits, with warnings in summary.json)")
+        conv = to_micro(lib, 1.0)
+        macro = dict(conv.used)
+        warns = list(conv.warnings)
+        if macro["nu"] >= 0.2:
+            macro["nu"] = 0.19
+            warns.append(f"{lib.name}: a random packing needs nu < 0.2 in the lattice conversion; "
+                         "converted with nu = 0.19")
+        return SpecimenMaterial(macro["rho"], macro=macro, label=f"{lib.name}: lattice conversion",
+                                warnings=warns)
+    raise ValueError(f"material {name!r} must give rock properties (E, nu, Tu, Cu, mu_i, rho), "
+                     "per-size element parameters or {library: NAME}")
+
+
+def material_rotation(cfg, model) -> dict | None:
+    """The rotation option of the materials ``model`` uses (``rotation``, ``rolling_friction``,
+    ``bond_moment`` of their element parameters): None when none asks for it, else
+    ``{"rolling_friction": mu_r, "bond_moment": b}``. Rotation is a property of the whole
+    model (the engine turns every element or none), so its materials must agree; a
+    ``BuildError`` names the first that differs."""
+    dim = getattr(model, "dim", None)
+    if dim not in (2, 3):
+        return None
+    seen = {}
+    for _, name in model.material_refs():
+        if name in seen or name not in cfg.materials:
+            continue
+        try:
+            el = specimen_material(cfg, name, dim).element or {}
+        except ValueError:
+            continue  # the build reports it
+        seen[name] = ((float(el.get("rolling_friction") or 0.0),
+                       float(el.get("bond_moment") or 0.0)) if el.get("rotation") else None)
+    wanted = {v for v in seen.values()}
+    if wanted <= {None}:
+        return None
+    if len(wanted) > 1:
+        first = next(n for n, v in seen.items() if v != next(iter(seen.values())))
+
+        def said(v):
+            return "rotation: false" if v is None else f"mu_r {v[0]:g}, bond_moment {v[1]:g}"
+
+        listed = ", ".join(f"{n!r} ({said(v)})" for n, v in seen.items())
+        raise BuildError(("materials", first), "rotation is a property of the whole model (every "
+                         f"element turns or none): the materials {listed} differ; allowed: the "
+                         "same rotation, rolling_friction and bond_moment in every material of "
+                         "the model")
+    mu_r, mb = wanted.pop()
+    return {"rolling_friction": mu_r, "bond_moment": mb}
+
+
+def apply_material_rotation(cfg, built: BuiltModel) -> None:
+    """Switch on the materials' rotation (:func:`material_rotation`) for the built model:
+    every element turns (walls and platens, being fixed or prescribed, do not), with the
+    materials' rolling friction and moment-resisting bonds; recorded in ``built.info``."""
+    rot = material_rotation(cfg, cfg.model)
+    if rot is None:
+        return
+    from geodem.core.state import enable_rotation
+
+    if built.state.rotation:
+        raise BuildError(("model",), "the model turns its elements already (its own rotation "
+                                     "option) and its material asks for rotation too; allowed: "
+                                     "one of the two")
+    enable_rotation(built.state, mu_r=rot["rolling_friction"], bond_moment=rot["bond_moment"])
+    built.info["rotation"] = rot
+
+
+# ============================================================================ specimen
+def material_problems(cfg, name: str, dim: int, d_mean: float | None = None) -> list:
+    """``[(("material",), message)]`` when material ``name`` cannot serve a specimen of
+    dimension ``dim`` (:func:`specimen_material` refuses it); ``[]`` otherwise, also when the
+    name is unknown (the schema reports that)."""
+    if name not in cfg.materials:
+        return []
+    try:
+        specimen_material(cfg, name, dim, d_mean)
+    except ValueError as exc:
+        return [(("material",), str(exc))]
+    return []
+
+
+def box_size_problems(size, dim: int, d_mean: float) -> list:
+    """Field problems of a box specimen's ``size`` (``dim`` lengths > 0, at least 4 d_mean)."""
+    if len(size) != dim:
+        return [(("size",), f"{len(size)} values for dim = {dim}; allowed: {dim} lengths > 0 "
+                            "[m]")]
+    if any(not s > 0 for s in size):
+        return [(("size",), "allowed: lengths > 0 [m]")]
+    if min(size) < 4 * d_mean:
+        return [(("size",), f"the specimen must be at least 4 d_mean = {4 * d_mean:g} m "
+                            "across")]
+    return []
+
+
