@@ -15,7 +15,7 @@ Unknowns (size-free, :func:`geodem.materials.per_size`), in the log / ratio vari
 strength, ``mu`` the friction coefficient of the contacts). Measurements ``y = (ln E, nu, ln
 Tu, ln Cu, phi)``; ``phi`` is the friction angle of a two-stage triaxial test on the same
 packing (sigma3 = 0 and sigma3 = :data:`FRICTION_CONFINEMENT` x Cu, the two-point Mohr-Coulomb
-angle, :func:`geodem.labtests.friction.two_point_angle`), matched to ``atan(mu_i)`` when
+angle, :func:`geodem.studies.friction.two_point_angle`), matched to ``atan(mu_i)`` when
 ``spec.friction`` is on; with it off, ``mu`` stays at the lattice value from ``mu_i``. In
 quasi-static small-strain loading:
 
@@ -51,7 +51,7 @@ changed ``s`` by 0.4 and E by -58 %. A later one solved nu in ``s`` alone and Cu
 ``rho_s`` alone; nu depends on ``rho_s`` too, and four rocks did not converge.)
 
 Tolerances: E, Cu, Tu within 5 %, nu within 0.03 absolute, phi within 2 degrees. Targets
-outside the region charted for the packing (:mod:`geodem.labtests.reach`: the (Cu / Tu, nu)
+outside the region charted for the packing (:mod:`geodem.studies.reach`: the (Cu / Tu, nu)
 measured over a grid of the shape variables) are refused before the first iteration, with
 the measured bounds. A target found out of reach on the way (nu beyond the nu(s) range of the
 packing, Cu/Tu beyond the ratio the bond law allows, phi beyond what the contact friction
@@ -206,7 +206,7 @@ class CalibrationSpec:
     # (geodem.materials.STRUCTURE_KEYS): packing recipe, bond range, bond-strength scatter
     structure: dict = field(default_factory=lambda: {"packing": "isotropic"})
     # refuse, before the first iteration, targets outside the charted reachable region
-    # (geodem.labtests.reach); False runs them anyway and reports what is out of reach
+    # (geodem.studies.reach); False runs them anyway and reports what is out of reach
     check_reach: bool = True
     # match the friction angle atan(mu_i) by the contact friction mu (a triaxial test per
     # iteration once the other four are close); False (default) keeps the lattice mu: with
@@ -246,7 +246,7 @@ class UnreachableTarget(ValueError):
 
 def check_reachable(spec: CalibrationSpec) -> None:
     """Raise :class:`UnreachableTarget` when ``spec.targets`` lie outside the region charted
-    for ``spec.dim`` and its micro-structure (:func:`geodem.labtests.reach.outside_region`)."""
+    for ``spec.dim`` and its micro-structure (:func:`geodem.studies.reach.outside_region`)."""
     from geodem.studies.reach import outside_region
 
     why = outside_region(spec.targets, spec.dim, spec.structure, spec.tolerances)

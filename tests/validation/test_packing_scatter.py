@@ -4,7 +4,7 @@ by about the calibration's tolerance; the Brazilian disc agrees with direct tens
 only (seeds 1-4: 3.0-5.1 x). Slow: about 40 s a packing on one core."""
 import pytest
 
-from geodem.labtests.calibrate import CalibrationSpec, brazilian_check, measure
+from geodem.studies.calibrate import CalibrationSpec, brazilian_check, measure
 from geodem.materials import STRUCTURE_KEYS
 from geodem.materials_library import load_material
 
