@@ -160,7 +160,7 @@ def test_bad_plate_coarsen_exits_2(tmp_path, setting, words):
 def test_coarsening_beyond_three_hole_radii_keeps_the_default_breakdown(tmp_path):
     """The median breakdown of three seeds of the graded plate (factor 3 beyond 3 hole radii:
     band 6 d, transition 4 d, ~380 elements instead of ~1,620) stays within -20/+10 % of
-    the uniform plate's mean. Measured on the session-7 engine: uniform seeds 0-2: 2.15,
+    the uniform plate's mean. Measured with the each-contact-once engine: uniform seeds 0-2: 2.15,
     2.30, 2.00 MPa (4, 5, 5 arms); graded: 3.49 (its burst came late: first crack at
     1.39 MPa), 2.35, 2.30 MPa (4, 3, 3 arms). One seed is not enough: the burst criterion
     (5 bonds within 0.25 MPa) picks a late sample now and then. (Before the each-contact-once pass: uniform
