@@ -32,6 +32,7 @@ BUILTINS: dict[str, tuple[str, ...]] = {
     "workflow": ("geodem.cases.two_balls",     # two_balls, two_balls_check
                  "geodem.workflow.models",
                  "geodem.workflow.steps",
+                 "geodem.workflow.scene",   # scene: a model composed from parts
                  "geodem.cases.uniaxial",   # specimen, uniaxial
                  "geodem.cases.brazilian",  # brazilian_disc, brazilian, direct_tension
                  "geodem.cases.triaxial",   # triaxial_box, triaxial

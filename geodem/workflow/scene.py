@@ -1,0 +1,293 @@
+"""Model ``scene``: a user's own bonded model composed from parts in YAML.
+
+A scene is a **domain** (a box, or a polygon in 2-D) filled with a close-packed lattice of one
+element diameter (triangular in 2-D, FCC in 3-D; the lattice starts half an element inside the
+lower corner, every element lies within the bounding box, and in a polygon element centres lie
+inside it), whose elements take their material from
+ordered **regions** (shapes or half-spaces; a later region overrides an earlier one; elements in
+no region take the scene's ``material``). Bonds across two regions are kept (each bond as
+strong as the weaker element, as everywhere in geodem) or, with ``interfaces: joint``, cut: the
+regions then touch without cement, like the two sides of a joint. Named **groups** select
+elements by side of the domain, by region or by box, for any step (fix, velocity, load, ...).
+
+Not built yet: random packings (``fill`` takes ``lattice`` only), terrain domains and label
+images (the ``landslide`` and image tools do those for their cases), an interface material.
+"""
+from __future__ import annotations
+
+import math
+from typing import Literal, Optional, Union
+
+import numpy as np
+from pydantic import model_validator
+
+from geodem.workflow.models import (SIDES, BuildError, BuiltModel, state_bytes_per_element,
+                                    element_params)
+from geodem.workflow.schema import DOF_NAMES, F, ModelBase, Name, Strict, register_model
+
+
+class SceneBox(Strict):
+    min: list[float] = F(..., unit="m", min_length=2, max_length=3, description="Lower corner")
+    max: list[float] = F(..., unit="m", min_length=2, max_length=3, description="Upper corner")
+
+
+class SceneDisc(Strict):
+    center: list[float] = F(..., unit="m", min_length=2, max_length=3,
+                            description="Centre (2-D: a disc; 3-D: a cylinder along y)")
+    radius: float = F(..., unit="m", gt=0, description="Radius")
+
+
+class Shape(Strict):
+    """One of: ``box``, ``polygon`` (2-D), ``disc``, ``below`` or ``above`` (a horizontal plane:
+    the last coordinate, y in 2-D and z in 3-D, below or above the value)."""
+
+    box: Optional[SceneBox] = F(None, description="Box of element centres [m]")
+    polygon: Optional[list[list[float]]] = F(None, unit="m", description="Polygon vertices "
+                                             "(2-D, at least 3 [x, y] pairs)")
+    disc: Optional[SceneDisc] = F(None, description="Disc (2-D) or cylinder along y (3-D)")
+    below: Optional[float] = F(None, unit="m", description="Centres with the last "
+                                                           "coordinate below this")
+    above: Optional[float] = F(None, unit="m", description="Centres with the last "
+                                                           "coordinate above this")
+
+    @model_validator(mode="after")
+    def _one(self):
+        given = [k for k in ("box", "polygon", "disc", "below", "above")
+                 if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(f"give exactly one of box, polygon, disc, below, above (got "
+                             f"{', '.join(given) or 'none'})")
+        if self.polygon is not None and (len(self.polygon) < 3 or
+                                         any(len(v) != 2 for v in self.polygon)):
+            raise ValueError("polygon: at least 3 vertices of 2 coordinates [x, y]")
+        return self
+
+    def problems(self, dim, path):
+        out = []
+        if self.polygon is not None and dim != 2:
+            out.append((path + ("polygon",), "a polygon is 2-D only; use a box or a disc"))
+        for key, obj in (("box", self.box), ("disc", self.disc)):
+            if obj is None:
+                continue
+            for f in ("min", "max") if key == "box" else ("center",):
+                if len(getattr(obj, f)) != dim:
+                    out.append((path + (key, f), f"{dim} coordinates needed"))
+        return out
+
+    def mask(self, x) -> np.ndarray:
+        from geodem.build.shapes import box_mask, disc_mask, polygon_mask
+
+        if self.box is not None:
+            return box_mask(x, self.box.min, self.box.max)
+        if self.polygon is not None:
+            return polygon_mask(x, np.asarray(self.polygon, float))
+        if self.disc is not None:
+            if x.shape[1] == 2:
+                return disc_mask(x, self.disc.center, self.disc.radius)
+            return disc_mask(x, self.disc.center, self.disc.radius, axis="y",
+                             thickness=math.inf)
+        if self.below is not None:
+            return x[:, -1] < self.below
+        return x[:, -1] > self.above
+
+
+class Region(Strict):
+    name: Optional[Name] = F(None, description="Region name (for groups: {region: NAME})")
+    material: Name = F(..., description="Material of the elements in the shape")
+    shape: Shape = F(..., description="Where the region is")
+
+
+class SceneGroup(Strict):
+    """Elements of a group: a slab at one side of the domain, a named region or a box. An
+    element belongs to one group; the last group that selects it wins."""
+
+    side: Optional[Literal[SIDES]] = F(  # type: ignore[valid-type]
+        None, description="Side of the domain's bounding box (xmin, ..., zmax)")
+    depth: float = F(0.5, gt=0, description="Slab depth from the side, in element diameters")
+    region: Optional[Name] = F(None, description="A region's name")
+    box: Optional[SceneBox] = F(None, description="Box selecting element centres [m]")
+
+    @model_validator(mode="after")
+    def _one(self):
+        if sum(v is not None for v in (self.side, self.region, self.box)) != 1:
+            raise ValueError("give exactly one of side, region or box")
+        return self
+
+
+@register_model("scene")
+class Scene(ModelBase):
+    """A close-packed lattice filling a domain, materials by ordered regions, joints between
+    regions on request and named groups (module docstring)."""
+
+    size_field = "d"
+    example = {"type": "scene", "dim": 2, "d": 0.02,
+               "domain": {"box": {"min": [0.0, 0.0], "max": [0.6, 0.3]}},
+               "material": "rock",
+               "regions": [{"name": "soft", "material": "clay", "shape": {"below": 0.1}}],
+               "interfaces": "joint",
+               "groups": {"base": {"side": "ymin"}, "soft": {"region": "soft"}}}
+    dim: Literal[2, 3] = F(2, description="Dimension")
+    d: float = F(..., unit="m", gt=0, description="Element diameter (lattice spacing)")
+    domain: Shape = F(..., description="The domain: a box, or a polygon in 2-D")
+    fill: Literal["lattice"] = F("lattice", description="Fill: 'lattice' (close-packed); "
+                                                        "random packings are not built yet")
+    material: Name = F(..., description="Material of elements in no region")
+    regions: list[Region] = F([], description="Ordered regions; a later one overrides")
+    interfaces: Literal["bonded", "joint"] = F(
+        "bonded", description="Bonds across two regions: 'bonded' (kept) or 'joint' (cut)")
+    gravity: Optional[list[float]] = F(None, unit="m/s^2", min_length=2, max_length=3,
+                                       description="Gravity vector (dim components)")
+    groups: dict[Name, SceneGroup] = F({}, description="Named element groups")
+    sort: bool = F(True, description="Reorder elements in Morton order (faster runs)")
+
+    def _bounds(self):
+        s = self.domain
+        if s.box is not None:
+            return np.asarray(s.box.min, float), np.asarray(s.box.max, float)
+        if s.polygon is not None:
+            v = np.asarray(s.polygon, float)
+            return v.min(axis=0), v.max(axis=0)
+        return None
+
+    def _counts(self):
+        """Lattice counts covering the bounding box with element centres from ``lo + d/2``
+        to ``hi - d/2``."""
+        lo, hi = self._bounds()
+        ext = np.maximum(hi - lo - self.d, 0.0)
+        spacing = [1.0, math.sqrt(3.0) / 2.0] + ([math.sqrt(2.0 / 3.0)] if self.dim == 3 else [])
+        return [int(math.floor(e / (s * self.d) + 1e-9)) + 1 for e, s in zip(ext, spacing)]
+
+    def n_elements(self):
+        if self._bounds() is None or len(self._bounds()[0]) != self.dim:
+            return 0
+        return int(np.prod(self._counts(), dtype=np.float64))
+
+    def bytes_per_element(self):
+        width = 16 if self.dim == 3 else 8
+        return state_bytes_per_element(self.dim, width) + 1000
+
+    def material_refs(self):
+        return [(("material",), self.material)] + [
+            (("regions", k, "material"), r.material) for k, r in enumerate(self.regions)]
+
+    def group_names(self):
+        return ["all"] + list(self.groups)
+
+    def n_across(self):
+        lo, hi = self._bounds()
+        return float(max(hi - lo) / self.d)
+
+    def check(self, cfg):
+        out = []
+        dom = self.domain
+        if dom.disc is not None or dom.below is not None or dom.above is not None:
+            out.append((("domain",), "the domain is a box or (2-D) a polygon"))
+        out += dom.problems(self.dim, ("domain",))
+        if not out:
+            lo, hi = self._bounds()
+            if np.any(hi - lo < self.d):
+                out.append((("domain",), f"the domain is thinner than one element (d = "
+                                         f"{self.d:g} m) along an axis"))
+        if self.gravity is not None and len(self.gravity) != self.dim:
+            out.append((("gravity",), f"{len(self.gravity)} components for dim = {self.dim}"))
+        names = [r.name for r in self.regions if r.name is not None]
+        for k, r in enumerate(self.regions):
+            out += r.shape.problems(self.dim, ("regions", k, "shape"))
+            if r.name is not None and names.count(r.name) > 1:
+                out.append((("regions", k, "name"), f"region name {r.name!r} is used twice"))
+        for name, g in self.groups.items():
+            if name == "all":
+                out.append((("groups", name), "'all' always means every element; choose "
+                                               "another name"))
+            if g.side is not None and DOF_NAMES.index(g.side[0]) >= self.dim:
+                out.append((("groups", name, "side"), f"side {g.side!r} does not exist in "
+                                                      f"{self.dim}-D"))
+            if g.region is not None and g.region not in names:
+                out.append((("groups", name, "region"), f"no region named {g.region!r}; "
+                                                        f"allowed: {', '.join(names) or 'none'}"))
+            if g.box is not None:
+                for key in ("min", "max"):
+                    if len(getattr(g.box, key)) != self.dim:
+                        out.append((("groups", name, "box", key),
+                                    f"{self.dim} coordinates needed"))
+        return out
+
+    def build(self, cfg):
+        from geodem.build.lattice import bonded_state, fcc_lattice, triangular_lattice
+        from geodem.core.neighbors import spatial_sort
+
+        d = self.d
+        lo, hi = self._bounds()
+        c = self._counts()
+        x = fcc_lattice(*c, d) if self.dim == 3 else triangular_lattice(*c, d)
+        x = x + lo + 0.5 * d
+        tol = 1e-9 * d
+        # whole elements inside the bounding box; in a polygon, centres inside
+        x = x[self.domain.mask(x) & np.all(x <= hi - 0.5 * d + tol, axis=1)]
+        if len(x) == 0:
+            raise BuildError(("domain",), "the domain holds no element")
+        region = self.region_ids(x)
+        mats = [self.material] + [r.material for r in self.regions]
+        params = {}
+        for k, name in enumerate(mats):
+            path = ("material",) if k == 0 else ("regions", k - 1, "material")
+            params[k] = element_params(cfg, name, d, self.dim, path)
+        per = {key: np.array([params[int(k)][key] for k in region], float)
+               for key in ("kn", "ks", "xb", "fs0", "mu", "rho")}
+        st = bonded_state(x, 0.5 * d, density=per["rho"], kn=per["kn"], ks=per["ks"],
+                          xb=per["xb"], fs0=per["fs0"], mu=per["mu"], gap=1e-6 * d)
+        for k in params:
+            if params[k]["mass"] is not None:
+                st.m[region == k] = params[k]["mass"]
+        if self.gravity is not None:
+            st.gravity[:self.dim] = self.gravity
+        cut = cut_interfaces(st, region) if self.interfaces == "joint" else 0
+        self._add_groups(st, region)
+        if self.sort:
+            spatial_sort(st)
+        counts = {("default" if k == 0 else (self.regions[k - 1].name or f"region {k - 1}")):
+                  int((region == k).sum()) for k in range(len(mats))}
+        return BuiltModel(st, st.x.copy(), self.n_across(),
+                          {"d": d, "diameter": d, "elements_by_region": counts,
+                           "joint_bonds_cut": cut})
+
+    def region_ids(self, x) -> np.ndarray:
+        """Region index per element: 0 for none, k + 1 for ``regions[k]`` (the last wins)."""
+        region = np.zeros(len(x), np.int64)
+        for k, r in enumerate(self.regions):
+            region[r.shape.mask(x)] = k + 1
+        return region
+
+    def _add_groups(self, st, region):
+        from geodem.core import groups as grp
+
+        lo, hi = st.x.min(axis=0), st.x.max(axis=0)
+        names = {r.name: k + 1 for k, r in enumerate(self.regions) if r.name is not None}
+        for name, g in self.groups.items():
+            if g.side is not None:
+                ax = DOF_NAMES.index(g.side[0])
+                depth = g.depth * self.d
+                sel = (st.x[:, ax] <= lo[ax] + depth - 1e-9 * self.d
+                       if g.side.endswith("min") else
+                       st.x[:, ax] >= hi[ax] - depth + 1e-9 * self.d)
+            elif g.region is not None:
+                sel = region == names[g.region]
+            else:
+                sel = np.all((st.x >= np.asarray(g.box.min)) & (st.x <= np.asarray(g.box.max)),
+                             axis=1)
+            if not sel.any():
+                raise BuildError(("groups", name), f"group {name!r} selects no element")
+            grp.add_group(st, name, sel)
+
+
+def cut_interfaces(state, region) -> int:
+    """Unbond every bonded contact whose two elements lie in different regions (a joint: the
+    contact stays, frictional, without cement); returns the number of bonds cut."""
+    from geodem.core.state import BONDED, UNBONDED
+
+    i = np.repeat(np.arange(state.n), state.nbr.shape[1]).reshape(state.nbr.shape)
+    j = state.nbr
+    across = (j >= 0) & (state.cstate == BONDED)
+    across &= region[i] != region[np.where(j >= 0, j, 0)]
+    state.cstate[across] = UNBONDED
+    return int(across.sum()) // 2
