@@ -126,6 +126,24 @@ def concat_states(parts, shifts):
 SIDES = ("xmin", "xmax", "ymin", "ymax", "zmin", "zmax")
 
 
+def group_problems(groups: dict, dim: int) -> list:
+    """Problems of named groups with an optional ``side`` and ``box`` (lattice_block, scene):
+    the reserved name 'all', a side the dimension lacks, a box of the wrong size."""
+    out = []
+    for name, g in groups.items():
+        if name == "all":
+            out.append((("groups", name), "'all' always means every element; choose "
+                                           "another name"))
+        if g.side is not None and DOF_NAMES.index(g.side[0]) >= dim:
+            out.append((("groups", name, "side"), f"side {g.side!r} does not exist in "
+                                                  f"{dim}-D"))
+        if g.box is not None:
+            for key in ("min", "max"):
+                if len(getattr(g.box, key)) != dim:
+                    out.append((("groups", name, "box", key), f"{dim} coordinates needed"))
+    return out
+
+
 class Box(Strict):
     min: list[float] = F(..., unit="m", min_length=2, max_length=3, description="Lower corner")
     max: list[float] = F(..., unit="m", min_length=2, max_length=3, description="Upper corner")
@@ -193,19 +211,7 @@ class LatticeBlock(ModelBase):
                                      f"{self.dim} whole numbers >= 1"))
         if self.gravity is not None and len(self.gravity) != self.dim:
             out.append((("gravity",), f"{len(self.gravity)} components for dim = {self.dim}"))
-        for name, g in self.groups.items():
-            if name == "all":
-                out.append((("groups", name), "'all' always means every element; choose "
-                                               "another name"))
-            if g.side is not None and DOF_NAMES.index(g.side[0]) >= self.dim:
-                out.append((("groups", name, "side"), f"side {g.side!r} does not exist in "
-                                                      f"{self.dim}-D"))
-            if g.box is not None:
-                for key in ("min", "max"):
-                    if len(getattr(g.box, key)) != self.dim:
-                        out.append((("groups", name, "box", key),
-                                    f"{self.dim} coordinates needed"))
-        return out
+        return out + group_problems(self.groups, self.dim)
 
     def build(self, cfg):
         from geodem.build.lattice import bonded_state, fcc_lattice, triangular_lattice

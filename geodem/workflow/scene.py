@@ -21,8 +21,8 @@ from typing import Literal, Optional, Union
 import numpy as np
 from pydantic import model_validator
 
-from geodem.workflow.models import (SIDES, BuildError, BuiltModel, state_bytes_per_element,
-                                    element_params)
+from geodem.workflow.models import (SIDES, BuildError, BuiltModel, element_params,
+                                    group_problems, state_bytes_per_element)
 from geodem.workflow.schema import DOF_NAMES, F, ModelBase, Name, Strict, register_model
 
 
@@ -196,21 +196,10 @@ class Scene(ModelBase):
             if r.name is not None and names.count(r.name) > 1:
                 out.append((("regions", k, "name"), f"region name {r.name!r} is used twice"))
         for name, g in self.groups.items():
-            if name == "all":
-                out.append((("groups", name), "'all' always means every element; choose "
-                                               "another name"))
-            if g.side is not None and DOF_NAMES.index(g.side[0]) >= self.dim:
-                out.append((("groups", name, "side"), f"side {g.side!r} does not exist in "
-                                                      f"{self.dim}-D"))
             if g.region is not None and g.region not in names:
                 out.append((("groups", name, "region"), f"no region named {g.region!r}; "
                                                         f"allowed: {', '.join(names) or 'none'}"))
-            if g.box is not None:
-                for key in ("min", "max"):
-                    if len(getattr(g.box, key)) != self.dim:
-                        out.append((("groups", name, "box", key),
-                                    f"{self.dim} coordinates needed"))
-        return out
+        return out + group_problems(self.groups, self.dim)
 
     def build(self, cfg):
         from geodem.build.lattice import bonded_state, fcc_lattice, triangular_lattice
