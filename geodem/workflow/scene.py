@@ -16,7 +16,7 @@ images (the ``landslide`` and image tools do those for their cases), an interfac
 from __future__ import annotations
 
 import math
-from typing import Literal, Optional, Union
+from typing import Literal, Optional
 
 import numpy as np
 from pydantic import model_validator
