@@ -71,8 +71,8 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import model_validator
 
-from geodem.workflow.models import BuildError, BuiltModel, element_params, \
-    state_bytes_per_element
+from geodem.workflow.models import ROOT, BuildError, BuiltModel, element_params, \
+    resolve_path, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, Strict, register_model, \
     register_step
 
@@ -83,20 +83,9 @@ FRAMES_DIR = "landslide_frames"
 VTK_DIR = "landslide_vtk"
 GEOREF = "georef.json"
 START = "landslide_start.npz"
-ROOT = Path(__file__).resolve().parents[2]
 
 
 # ============================================================================ rasters
-def resolve_path(path: str) -> Path:
-    """A raster path: absolute, or relative to the working directory, else to the geodem
-    source tree (so ``workflows/data/hill.tif`` is found from anywhere)."""
-    p = Path(path).expanduser()
-    if p.is_absolute() or p.exists():
-        return p
-    q = ROOT / p
-    return q if q.exists() else p
-
-
 @functools.lru_cache(maxsize=8)
 def _read(path: str, mtime: float, crs, like: tuple | None):
     from geodem.geo import read_elevation

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Annotated, Literal, Optional
 
 import numpy as np
@@ -28,6 +29,22 @@ from geodem.workflow.schema import (
     Strict,
     register_model,
 )
+
+
+#: the source tree's root: data files named in workflows (``workflows/data/...``) are found
+#: from any working directory
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def resolve_path(path: str) -> Path:
+    """A data file named in a workflow (raster, image): absolute, or relative to the working
+    directory, else to the geodem source tree (so ``workflows/data/hill.tif`` is found from
+    anywhere)."""
+    p = Path(path).expanduser()
+    if p.is_absolute() or p.exists():
+        return p
+    q = ROOT / p
+    return q if q.exists() else p
 
 
 def state_bytes_per_element(dim: int, width: int) -> int:

@@ -10,13 +10,17 @@ strong as the weaker element, as everywhere in geodem) or, with ``interfaces: jo
 regions then touch without cement, like the two sides of a joint. Named **groups** select
 elements by side of the domain, by region or by box, for any step (fix, velocity, load, ...).
 
-Not built yet: random packings (``fill`` takes ``lattice`` only), terrain domains and label
-images (the ``landslide`` and image tools do those for their cases), an interface material.
+Regions are shapes of one material each, or the coloured regions of a **label image**
+(colour -> region and material, with a pixel size and an origin; pixels of an ``empty`` colour
+hold no element: a cavity drawn on the image).
+
+Not built yet: random packings (``fill`` takes ``lattice`` only), terrain domains (the
+``landslide`` model does those for its case), an interface material.
 """
 from __future__ import annotations
 
 import math
-from typing import Literal, Optional
+from typing import Literal, Optional, Union
 
 import numpy as np
 from pydantic import model_validator
@@ -91,10 +95,70 @@ class Shape(Strict):
         return x[:, -1] > self.above
 
 
+class ImageColour(Strict):
+    material: Name = F(..., description="Material of the elements on pixels of this colour")
+    colour: Union[str, list[int], list[Union[str, list[int]]]] = F(
+        ..., description="'#rrggbb', [r, g, b] (0-255), or a list of them")
+
+
+class ImageRegions(Strict):
+    """Regions from a label image: each named colour is a region of one material. The image's
+    lower-left pixel corner sits at ``origin``; pixels are ``pixel_size`` square; in 3-D the
+    image is a vertical section (``plane: xz``, extruded along y) or a plan (``xy``, extruded
+    along z)."""
+
+    file: str = F(..., description="Image file (PNG, BMP, TIFF, ...): absolute, or relative to "
+                                   "the working directory or the geodem source tree")
+    pixel_size: float = F(..., unit="m", gt=0, description="Pixel edge length")
+    origin: list[float] = F([0.0, 0.0], unit="m", min_length=2, max_length=2,
+                            description="Model coordinates of the image's lower-left corner")
+    plane: Literal["xy", "xz", "yz"] = F("xy", description="Model plane of the image (2-D: "
+                                                           "xy; 3-D section: xz)")
+    colours: dict[Name, ImageColour] = F(..., min_length=1,
+                                         description="Region name -> material and colour")
+    empty: list[Union[str, list[int]]] = F([], description="Colours that mean no element (a "
+                                                           "cavity, air): removed")
+    tolerance: float = F(0.0, ge=0, le=255, description="Colour tolerance (Chebyshev, 0-255; "
+                                                        "JPEG images need 20-40)")
+
+    def read(self):
+        from geodem.geo.image import read_labels
+        from geodem.workflow.models import resolve_path
+
+        colours = {name: c.colour for name, c in self.colours.items()}
+        return read_labels(str(resolve_path(self.file)), colours=colours,
+                           tolerance=self.tolerance, empty=self.empty or None)
+
+    def extent(self, image):
+        h, w = image.shape
+        u0, v0 = self.origin
+        return (u0, v0, u0 + w * self.pixel_size, v0 + h * self.pixel_size)
+
+
 class Region(Strict):
+    """A shape of one material, or the coloured regions of a label image."""
+
     name: Optional[Name] = F(None, description="Region name (for groups: {region: NAME})")
-    material: Name = F(..., description="Material of the elements in the shape")
-    shape: Shape = F(..., description="Where the region is")
+    material: Optional[Name] = F(None, description="Material of the elements in the shape")
+    shape: Optional[Shape] = F(None, description="Where the region is")
+    image: Optional[ImageRegions] = F(None, description="Regions from a label image (instead "
+                                                        "of name, material and shape)")
+
+    @model_validator(mode="after")
+    def _one(self):
+        if (self.shape is None) == (self.image is None):
+            raise ValueError("give exactly one of shape (with material) or image")
+        if self.shape is not None and self.material is None:
+            raise ValueError("a shape region needs a material")
+        if self.image is not None and (self.material is not None or self.name is not None):
+            raise ValueError("an image region takes its names and materials from image.colours")
+        return self
+
+    def slots(self) -> list:
+        """``(name, material)`` of each region this entry makes."""
+        if self.image is None:
+            return [(self.name, self.material)]
+        return [(name, c.material) for name, c in self.image.colours.items()]
 
 
 class SceneGroup(Strict):
@@ -167,8 +231,25 @@ class Scene(ModelBase):
         return state_bytes_per_element(self.dim, width) + 1000
 
     def material_refs(self):
-        return [(("material",), self.material)] + [
-            (("regions", k, "material"), r.material) for k, r in enumerate(self.regions)]
+        out = [(("material",), self.material)]
+        for k, r in enumerate(self.regions):
+            if r.image is None:
+                out.append((("regions", k, "material"), r.material))
+            else:
+                out += [(("regions", k, "image", "colours", n, "material"), c.material)
+                        for n, c in r.image.colours.items()]
+        return out
+
+    def slots(self) -> list:
+        """``(name, material, path)`` of every region, in order (an image gives one per colour);
+        element region ids index this list from 1 (0: no region)."""
+        out = []
+        for k, r in enumerate(self.regions):
+            for name, mat in r.slots():
+                path = (("regions", k, "material") if r.image is None else
+                        ("regions", k, "image", "colours", name, "material"))
+                out.append((name, mat, path))
+        return out
 
     def group_names(self):
         return ["all"] + list(self.groups)
@@ -190,16 +271,36 @@ class Scene(ModelBase):
                                          f"{self.d:g} m) along an axis"))
         if self.gravity is not None and len(self.gravity) != self.dim:
             out.append((("gravity",), f"{len(self.gravity)} components for dim = {self.dim}"))
-        names = [r.name for r in self.regions if r.name is not None]
+        names = [n for n, _, _ in self.slots() if n is not None]
         for k, r in enumerate(self.regions):
-            out += r.shape.problems(self.dim, ("regions", k, "shape"))
-            if r.name is not None and names.count(r.name) > 1:
-                out.append((("regions", k, "name"), f"region name {r.name!r} is used twice"))
+            if r.shape is not None:
+                out += r.shape.problems(self.dim, ("regions", k, "shape"))
+            else:
+                out += self._image_problems(r.image, ("regions", k, "image"))
+            for n, _ in r.slots():
+                if n is not None and names.count(n) > 1:
+                    out.append((("regions", k, "name" if r.image is None else "image"),
+                                f"region name {n!r} is used twice"))
         for name, g in self.groups.items():
             if g.region is not None and g.region not in names:
                 out.append((("groups", name, "region"), f"no region named {g.region!r}; "
                                                         f"allowed: {', '.join(names) or 'none'}"))
         return out + group_problems(self.groups, self.dim)
+
+    def _image_problems(self, im, path):
+        from geodem.geo.errors import GeometryError
+        from geodem.workflow.models import resolve_path
+
+        if self.dim == 2 and im.plane != "xy":
+            return [(path + ("plane",), "a 2-D scene lies in the xy plane")]
+        if not resolve_path(im.file).exists():
+            return [(path + ("file",), f"image not found: {im.file} (looked in the working "
+                                       f"directory and the geodem source tree)")]
+        try:
+            im.read()
+        except (GeometryError, ValueError, OSError) as exc:
+            return [(path + ("file",), str(exc))]
+        return []
 
     def build(self, cfg):
         from geodem.build.lattice import bonded_state, fcc_lattice, triangular_lattice
@@ -216,11 +317,14 @@ class Scene(ModelBase):
         if len(x) == 0:
             raise BuildError(("domain",), "the domain holds no element")
         region = self.region_ids(x)
-        mats = [self.material] + [r.material for r in self.regions]
-        params = {}
-        for k, name in enumerate(mats):
-            path = ("material",) if k == 0 else ("regions", k - 1, "material")
-            params[k] = element_params(cfg, name, d, self.dim, path)
+        x, region = x[region >= 0], region[region >= 0]  # empty pixels: no element
+        if len(x) == 0:
+            raise BuildError(("regions",), "every element lies on an empty pixel")
+        slots = self.slots()
+        mats = [self.material] + [m for _, m, _ in slots]
+        paths = [("material",)] + [p for _, _, p in slots]
+        params = {k: element_params(cfg, name, d, self.dim, paths[k])
+                  for k, name in enumerate(mats)}
         per = {key: np.array([params[int(k)][key] for k in region], float)
                for key in ("kn", "ks", "xb", "fs0", "mu", "rho")}
         st = bonded_state(x, 0.5 * d, density=per["rho"], kn=per["kn"], ks=per["ks"],
@@ -234,24 +338,39 @@ class Scene(ModelBase):
         self._add_groups(st, region)
         if self.sort:
             spatial_sort(st)
-        counts = {("default" if k == 0 else (self.regions[k - 1].name or f"region {k - 1}")):
-                  int((region == k).sum()) for k in range(len(mats))}
+        labels = ["default"] + [n or f"region {k}" for k, (n, _, _) in enumerate(slots)]
+        counts = {labels[k]: int((region == k).sum()) for k in range(len(mats))}
         return BuiltModel(st, st.x.copy(), self.n_across(),
                           {"d": d, "diameter": d, "elements_by_region": counts,
                            "joint_bonds_cut": cut})
 
     def region_ids(self, x) -> np.ndarray:
-        """Region index per element: 0 for none, k + 1 for ``regions[k]`` (the last wins)."""
+        """Region index per element (the last region wins): 0 for none, k + 1 for
+        ``slots()[k]``, -1 for an element on an image's empty pixel (it is removed). Elements
+        outside an image keep what earlier regions gave them."""
+        from geodem.geo.image import EMPTY, pixel_labels
+
         region = np.zeros(len(x), np.int64)
-        for k, r in enumerate(self.regions):
-            region[r.shape.mask(x)] = k + 1
+        first = 1
+        for r in self.regions:
+            if r.image is None:
+                region[r.shape.mask(x)] = first
+                first += 1
+                continue
+            im = r.image.read()
+            lab = pixel_labels(x, im, r.image.extent(im), r.image.plane, outside="keep")
+            slot = {name: first + k for k, name in enumerate(r.image.colours)}
+            for k, name in enumerate(im.names):
+                region[lab == k] = slot[name]
+            region[lab == EMPTY] = -1
+            first += len(r.image.colours)
         return region
 
     def _add_groups(self, st, region):
         from geodem.core import groups as grp
 
         lo, hi = st.x.min(axis=0), st.x.max(axis=0)
-        names = {r.name: k + 1 for k, r in enumerate(self.regions) if r.name is not None}
+        names = {n: k + 1 for k, (n, _, _) in enumerate(self.slots()) if n is not None}
         for name, g in self.groups.items():
             if g.side is not None:
                 ax = DOF_NAMES.index(g.side[0])

@@ -117,3 +117,57 @@ def test_bad_scenes_are_refused_with_the_field(model, where):
     with pytest.raises(WorkflowError) as exc:
         _cfg(**model)
     assert where in str(exc.value)
+
+
+# ============================================================================ label images
+RED, BLUE, WHITE = (200, 30, 30), (30, 30, 200), (255, 255, 255)
+
+
+def _section_png(folder: Path) -> Path:
+    """6 x 3 pixels of 0.1 m over the 0.6 x 0.3 m box: a red upper layer (rows 0-1 from the top)
+    with a white (empty) window at columns 2-3 of row 1, on a blue lower layer (row 2)."""
+    from PIL import Image
+
+    px = np.zeros((3, 6, 3), np.uint8)
+    px[:2] = RED
+    px[1, 2:4] = WHITE
+    px[2] = BLUE
+    path = folder / "section.png"
+    Image.fromarray(px).save(path)
+    return path
+
+
+def test_an_image_gives_regions_by_colour_and_empty_pixels_hold_no_element(tmp_path):
+    png = _section_png(tmp_path)
+    image = {"file": str(png), "pixel_size": 0.1, "origin": [0.0, 0.0],
+             "colours": {"upper": {"material": "rock", "colour": list(RED)},
+                         "lower": {"material": "clay", "colour": "#1e1ec8"}},
+             "empty": ["#ffffff"]}
+    full = _build().state
+    built = _build(regions=[{"image": image}], groups={"low": {"region": "lower"}})
+    st = built.state
+    x = full.x
+    window = (x[:, 1] >= 0.1) & (x[:, 1] < 0.2) & (x[:, 0] >= 0.2) & (x[:, 0] < 0.4)
+    lower = x[:, 1] < 0.1
+    assert st.n == full.n - int(window.sum()) and window.sum() > 0
+    assert built.info["elements_by_region"] == {"default": 0, "upper": int((~window & ~lower).sum()),
+                                                 "lower": int(lower.sum())}
+    low = st.x[:, 1] < 0.1
+    assert np.allclose(st.kn[low], CLAY["kn"]) and np.allclose(st.kn[~low], ROCK["kn"])
+    from geodem.core import groups
+    assert len(groups.members(st, "low")) == lower.sum()
+
+
+def test_an_image_with_an_unmapped_colour_or_missing_file_is_refused(tmp_path):
+    png = _section_png(tmp_path)
+    image = {"file": str(png), "pixel_size": 0.1,
+             "colours": {"upper": {"material": "rock", "colour": list(RED)}}}
+    with pytest.raises(WorkflowError) as e:
+        _cfg(regions=[{"image": image}])
+    assert "regions[0].image.file" in str(e.value) and "#1e1ec8" in str(e.value)
+    with pytest.raises(WorkflowError) as e:
+        _cfg(regions=[{"image": dict(image, file=str(tmp_path / "none.png"))}])
+    assert "regions[0].image.file" in str(e.value) and "image not found" in str(e.value)
+    with pytest.raises(WorkflowError) as e:
+        _cfg(regions=[{"image": image, "material": "rock"}])
+    assert "image.colours" in str(e.value)
