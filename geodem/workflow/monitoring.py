@@ -36,11 +36,12 @@ from __future__ import annotations
 
 import csv
 import math
-from typing import Optional
+from typing import Literal, Optional
 
 import numpy as np
 from pydantic import model_validator
 
+from geodem.workflow.models import SIDES
 from geodem.workflow.schema import (
     DOF_NAMES,
     F,
@@ -52,7 +53,6 @@ from geodem.workflow.schema import (
     unknown_group,
 )
 
-SIDES = ("xmin", "xmax", "ymin", "ymax", "zmin", "zmax")
 COMPONENTS = "xyz"
 
 
@@ -437,9 +437,9 @@ class Pressure(StepBase):
     group: Optional[Name] = F(None, description="A boundary group (a side of the model, or "
                                                 "give side)")
     shape: Optional[CavityShape] = F(None, description="A cavity's wall instead of a group")
-    side: Optional[str] = F(None, pattern=r"^[xyz](min|max)$",
-                            description="Side the group lies on (xmin, ..., zmax); default: "
-                                        "the group's own side in the model")
+    side: Optional[Literal[SIDES]] = F(  # type: ignore[valid-type]
+        None, description="Side the group lies on (xmin, ..., zmax); default: the group's own "
+                           "side in the model")
     pressure: float = F(..., unit="Pa", description="Pressure (positive: pushes on the surface)")
     area: Optional[float] = F(None, unit="m^2", gt=0, description="Loaded area (default: the "
                                                                   "area convention)")
