@@ -23,8 +23,9 @@
   model's 2-D thickness, else the mean element diameter of the group); another group needs
   ``side`` and uses its own extent across. ``area`` overrides the loaded area. For a cavity
   (a disc in 2-D, a cylinder along y in 3-D) the elements within one diameter of its wall
-  (centre distance from ``radius`` to ``radius + 2 r``) carry ``p 2 pi R t / n`` (3-D:
-  ``t`` = the model's extent along y) along the direction from the centre to them.
+  (centre distance from ``radius`` to ``radius + 2 r``) carry ``p 2 pi R t`` (3-D: ``t`` =
+  the model's extent along y) along the direction from the centre to them, shared by the
+  angle each covers around the centre (3-D: evenly).
   With ``ramp`` (seconds) or ``ramp_steps`` the step itself runs the ramp's time steps: the
   pressure rises linearly from its current value (the last ``pressure`` step on the same
   surface, else 0) to ``pressure`` in equal increments every ``update_every`` steps (each
@@ -150,8 +151,10 @@ def cavity_load(state, center, radius, area: float | None = None, x=None):
     """Elements lining a cavity (disc in 2-D, cylinder along y in 3-D) of ``radius`` at
     ``center``: those whose centre lies from ``radius`` to ``radius + 2 r`` from its axis (at
     positions ``x``, default the state's). Returns ``(idx, unit forces (n, dim) [N/Pa], area
-    [m^2])``: ``area / n`` each (default ``2 pi R t``; 3-D: ``t`` the model's extent along y),
-    from the centre outwards."""
+    [m^2])`` (default ``2 pi R t``; 3-D: ``t`` the model's extent along y), from the centre
+    outwards. In 2-D each element carries the share of the wall its angle covers (half the
+    angles to its neighbours around the centre), so the forces on an uneven lining add up to
+    no net force; in 3-D ``area / n`` each."""
     c = np.asarray(center, float)
     x = state.x if x is None else x
     rel = x - c
@@ -167,7 +170,14 @@ def cavity_load(state, center, radius, area: float | None = None, x=None):
         else:
             t = float((x[:, 1] + state.r).max() - (x[:, 1] - state.r).min())
         area = 2.0 * math.pi * radius * t
-    unit = rel[idx] / dist[idx, None] * (area / idx.size)
+    share = np.full(idx.size, 1.0 / idx.size)
+    if state.dim == 2 and idx.size > 1:
+        ang = np.arctan2(rel[idx, 1], rel[idx, 0])
+        order = np.argsort(ang, kind="stable")
+        a = ang[order]
+        gap = np.diff(np.concatenate([a, a[:1] + 2.0 * math.pi]))  # to the next one round
+        share[order] = 0.5 * (gap + np.roll(gap, 1)) / (2.0 * math.pi)
+    unit = rel[idx] / dist[idx, None] * (area * share)[:, None]
     return idx, unit, float(area)
 
 
@@ -530,7 +540,7 @@ class Pressure(StepBase):
         total = self.planned_steps(ctx.plan)
         k = int(self.update_every or max(1, math.ceil(total / 100))) if total else 0
         res = {"pressure": p1, "pressure_start": p0, "area": area, "elements": int(idx.size),
-               "force_per_element": float(p1 * area / idx.size),
+               "mean_force_per_element": float(p1 * area / idx.size),
                "total_force": (p1 * unit.sum(axis=0)).tolist(), "ramp_steps": total,
                "update_every": k}
         prev = ctx.runner.results.get(self.name) if ctx.resumed else None

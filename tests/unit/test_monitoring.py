@@ -82,6 +82,11 @@ def test_a_cavity_is_loaded_radially_over_its_wall():
     mag = np.linalg.norm(unit, axis=1)
     assert mag == pytest.approx(np.full(8, area / 8))
     assert np.allclose(unit / mag[:, None], np.c_[np.cos(ang), np.sin(ang)])  # outwards
+    # an uneven lining: each element takes half the angles to its neighbours round the centre
+    # (0, 90 and 180 degrees: 135, 90 and 135 of the 360)
+    st3 = SimpleNamespace(x=x[[0, 2, 4]], r=np.full(3, r), dim=2, thickness=0.0)
+    _, u3, a3 = mon.cavity_load(st3, [1.0, 2.0], 0.04)
+    assert np.linalg.norm(u3, axis=1) == pytest.approx(a3 * np.array([135, 90, 135]) / 360)
 
 
 def _ctx(tmp_path, st, results):
