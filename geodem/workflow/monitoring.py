@@ -247,7 +247,7 @@ class MonitorRecorder:
             u, v = st.x[idx] - self.ref[idx], st.v[idx]
             for k in range(len(idx)):
                 out += u[k].tolist() + v[k].tolist()
-        for g, (idx, vol) in self.groups.items():
+        for idx, vol in self.groups.values():
             out += (st.x[idx] - self.ref[idx]).mean(axis=0).tolist()
             out += st.v[idx].mean(axis=0).tolist()
             if self.step.stress:
@@ -277,7 +277,7 @@ class MonitorRecorder:
     # -------------------------------------------------------------- start, resume, end
     def start(self) -> None:
         write_csv(self.path, self.columns)
-        if self.runner.files is not None and self.step.file not in self.runner.files:
+        if self.step.file not in self.runner.files:
             self.runner.files.append(self.step.file)
         self.sample()
 
