@@ -1,4 +1,5 @@
-"""Lab-test measurements from recorded curves (pure numpy; no engine).
+"""Lab-test measurements from recorded curves, and the contact stress of a state (pure numpy; no
+engine).
 
 Sign convention (lab, as in rock mechanics): **compression positive**. Axial stress and axial strain
 of a compression test are positive (shortening); lateral strain of a specimen that bulges is
@@ -13,7 +14,9 @@ Functions (docs/materials.md, VALIDATION.md "uniaxial / triaxial", "Brazilian di
 * :func:`peak` - UCS (peak stress) and the strain at the peak;
 * :func:`brazilian_tensile_strength` - ``2 P / (pi D t)``;
 * :func:`crack_start_offset` - mean distance of the first cracks from the disc centre / radius;
-* :func:`mohr_coulomb_fit` - cohesion, friction angle and UCS from triaxial peaks.
+* :func:`mohr_coulomb_fit` - cohesion, friction angle and UCS from triaxial peaks;
+* :func:`contact_stress` - Love-Weber (virial) mean stress of a set of elements' contact forces
+  from a model state (engine convention: **tension positive**).
 """
 from __future__ import annotations
 
@@ -197,3 +200,48 @@ def mohr_coulomb_fit(sigma3, sigma1) -> MohrCoulombFit:
     phi = math.asin(sphi)
     c = cu * (1.0 - sphi) / (2.0 * math.cos(phi))
     return MohrCoulombFit(c, math.degrees(phi), cu)
+
+
+# ----------------------------------------------------------------------------- contact stress
+def contact_stress(state, idx, volume) -> np.ndarray:
+    """Love-Weber (virial) mean stress of the elements ``idx`` over ``volume`` [Pa], tension
+    positive, as a ``(dim, dim)`` array ``sigma[a, b]``::
+
+        sigma = (1 / V) sum_{i in idx} sum_{contacts c of i} f_c (x) l_c
+        f_c = Fn n + Fs   (force on i; n = (x_j - x_i) / |x_j - x_i|, Fn tension positive)
+        l_c = (x_j - x_i) r_i / (r_i + r_j)   (centre of i to the contact point)
+
+    with the contact law of :mod:`geodem.core.law` (bonded: ``Fn = Kn Xn``; unbonded: only in
+    compression, Hertz if ``state.hertz``; ``Fs`` the stored shear spring). Summed over every
+    element of a region, the contacts inside it count once as ``f (x) (x_j - x_i)``. ``volume``
+    [m^3] is the region's volume (2-D: area x thickness). Without particle rotation (MatDEM's
+    default) nothing balances the moments of the shear forces, so ``sigma`` can be asymmetric
+    where the deformation rotates; it is returned as computed."""
+    from geodem.core.law import series_array
+    from geodem.core.state import BONDED
+
+    idx = np.asarray(idx, dtype=np.int64)
+    x, r = state.x, state.r
+    nbr = state.nbr[idx]
+    valid = nbr >= 0
+    j = np.where(valid, nbr, idx[:, None])
+    dvec = x[j] - x[idx][:, None, :]
+    dist = np.where(valid, np.linalg.norm(dvec, axis=2), 1.0)
+    n = dvec / dist[..., None]
+    ri, rj = r[idx][:, None], r[j]
+    xn = dist - ri - rj
+    kn = series_array(state.kn[idx][:, None], state.kn[j])
+    bonded = valid & (state.cstate[idx] == BONDED)
+    comp = valid & ~bonded & (xn < 0.0)
+    fn = np.where(bonded, kn * xn, 0.0)
+    if state.hertz:
+        e_i = state.kn[idx][:, None] / (np.pi * ri)
+        e_j = state.kn[j] / (np.pi * rj)
+        ov = np.where(comp, -xn, 0.0)
+        fn = fn - (4.0 / 3.0) * series_array(e_i, e_j) * np.sqrt(series_array(ri, rj)) * ov * \
+            np.sqrt(ov)
+    else:
+        fn = fn + np.where(comp, kn * xn, 0.0)
+    f = fn[..., None] * n + np.where(valid[..., None], state.fs[idx], 0.0)
+    lever = dvec * (ri / (ri + rj))[..., None]
+    return np.einsum("ika,ikb->ab", f, lever) / float(volume)

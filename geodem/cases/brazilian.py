@@ -48,8 +48,9 @@
   ``cracks_tensile``, ``cracks_shear``; curve ``direct_tension_curve.csv``, picture
   ``direct_tension.png``.
 
-Helpers: :func:`contact_stress` (Love-Weber stress of the contact forces of a set of elements)
-and :func:`disc_stress` (the Hertz / Timoshenko stress field of the diametrally loaded disc).
+Helpers: :func:`~geodem.measure.contact_stress` (Love-Weber stress of the contact forces of a set
+of elements; in :mod:`geodem.measure`, for every model, and importable from here) and
+:func:`disc_stress` (the Hertz / Timoshenko stress field of the diametrally loaded disc).
 
 Caveat (tests/integration/test_brazilian.py): ``2P/(pi D t)`` is the centre stress of a
 classical isotropic continuum. A disc of MatDEM's translation-only elements is one only without
@@ -67,6 +68,7 @@ from typing import Literal, Optional
 import numpy as np
 
 from geodem.cases.common import PlatenTest, append_csv, needs_model, read_rows, write_csv
+from geodem.measure import contact_stress  # noqa: F401 - written in geodem.measure, used here
 from geodem.workflow.material import SpecimenMaterial, material_problems, specimen_material
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
@@ -229,50 +231,6 @@ def disc_with_platens(dim, diameter, d_mean, material: SpecimenMaterial, *, thic
 
 
 # ============================================================================ stress
-def contact_stress(state, idx, volume) -> np.ndarray:
-    """Love-Weber (virial) mean stress of the elements ``idx`` over ``volume`` [Pa], tension
-    positive, as a ``(dim, dim)`` array ``sigma[a, b]``::
-
-        sigma = (1 / V) sum_{i in idx} sum_{contacts c of i} f_c (x) l_c
-        f_c = Fn n + Fs   (force on i; n = (x_j - x_i) / |x_j - x_i|, Fn tension positive)
-        l_c = (x_j - x_i) r_i / (r_i + r_j)   (centre of i to the contact point)
-
-    with the contact law of :mod:`geodem.core.law` (bonded: ``Fn = Kn Xn``; unbonded: only in
-    compression, Hertz if ``state.hertz``; ``Fs`` the stored shear spring). Summed over every
-    element of a region, the contacts inside it count once as ``f (x) (x_j - x_i)``. ``volume``
-    [m^3] is the region's volume (2-D: area x thickness). Without particle rotation (MatDEM's
-    default) nothing balances the moments of the shear forces, so ``sigma`` can be asymmetric
-    where the deformation rotates; it is returned as computed."""
-    from geodem.core.law import series_array
-    from geodem.core.state import BONDED
-
-    idx = np.asarray(idx, dtype=np.int64)
-    x, r = state.x, state.r
-    nbr = state.nbr[idx]
-    valid = nbr >= 0
-    j = np.where(valid, nbr, idx[:, None])
-    dvec = x[j] - x[idx][:, None, :]
-    dist = np.where(valid, np.linalg.norm(dvec, axis=2), 1.0)
-    n = dvec / dist[..., None]
-    ri, rj = r[idx][:, None], r[j]
-    xn = dist - ri - rj
-    kn = series_array(state.kn[idx][:, None], state.kn[j])
-    bonded = valid & (state.cstate[idx] == BONDED)
-    comp = valid & ~bonded & (xn < 0.0)
-    fn = np.where(bonded, kn * xn, 0.0)
-    if state.hertz:
-        e_i = state.kn[idx][:, None] / (np.pi * ri)
-        e_j = state.kn[j] / (np.pi * rj)
-        ov = np.where(comp, -xn, 0.0)
-        fn = fn - (4.0 / 3.0) * series_array(e_i, e_j) * np.sqrt(series_array(ri, rj)) * ov * \
-            np.sqrt(ov)
-    else:
-        fn = fn + np.where(comp, kn * xn, 0.0)
-    f = fn[..., None] * n + np.where(valid[..., None], state.fs[idx], 0.0)
-    lever = dvec * (ri / (ri + rj))[..., None]
-    return np.einsum("ika,ikb->ab", f, lever) / float(volume)
-
-
 def disc_stress(x, y, P, D, t):
     """Stress [Pa] of an isotropic elastic disc (plane stress or strain alike) of diameter ``D``
     and thickness ``t`` squeezed by two opposite point loads ``P`` [N] at ``(0, +-D/2)``

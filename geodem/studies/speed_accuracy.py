@@ -156,7 +156,7 @@ def lattice(dt_fraction, resolution, backend, damping) -> Point:
     from geodem.build.lattice import SQRT3_2, bonded_state, triangular_lattice
     from geodem.core import timestep
     from geodem.core.engine import Simulation
-    from geodem.cases.brazilian import contact_stress
+    from geodem.measure import contact_stress
 
     ny = int(resolution)
     H = 0.1

@@ -597,6 +597,14 @@ class StepContext:
         consistent with the new conditions and the energy the change adds is booked as work."""
         return self.sim.change(fn, book_energy=book_energy, group=group)
 
+    def add_sampler(self, sampler) -> None:
+        """Record with ``sampler`` while the later steps run: ``sampler.sample()`` after every
+        chunk of time steps that ends on a multiple of ``sampler.every`` (the chunks end there),
+        and once more at the end of the workflow unless ``sampler.last_step`` is the last step;
+        then ``sampler.finish()``. A step that adds one sets it up again on ``--resume`` in its
+        ``restore(ctx)`` (called for the steps done before the checkpoint)."""
+        self.runner.samplers.append(sampler)
+
     def series(self, path: str):
         """``(step, time, value)`` of a recorded series (e.g. observables/energy/kinetic)."""
         return self.runner.h5.read(path)
@@ -652,6 +660,9 @@ class Runner:
         self.h5 = None
         self.reporter = None
         self.vtk = None
+        #: per-sample recorders that steps register (StepContext.add_sampler): each has
+        #: ``every`` (time steps between samples), ``last_step``, ``sample()`` and ``finish()``
+        self.samplers: list = []
 
     # ------------------------------------------------------------------ signals
     def _on_signal(self, signum, frame):
@@ -685,7 +696,7 @@ class Runner:
         cfg = self.cfg
         for every in (cfg.outputs.observables.every, cfg.outputs.frames.every,
                       cfg.outputs.vtk.every if self.vtk is not None else None,
-                      cfg.checkpoints.every_steps):
+                      cfg.checkpoints.every_steps, *(smp.every for smp in self.samplers)):
             if every:
                 nxt = min(nxt, (s // every + 1) * every)
         if self.stop_after is not None and self.stop_after > s:
@@ -715,6 +726,9 @@ class Runner:
             s = st.step
             if s % cfg.outputs.observables.every == 0:
                 self.observer.record()
+            for smp in self.samplers:
+                if s % smp.every == 0:
+                    smp.sample()
             if cfg.outputs.frames.every and s % cfg.outputs.frames.every == 0:
                 self.observer.frame()
             if self.vtk is not None and cfg.outputs.vtk.every and s % cfg.outputs.vtk.every == 0:
@@ -902,6 +916,12 @@ class Runner:
                 self.h5.flush()
             self._last_flush = self._last_ckpt = time.perf_counter()
             rep.start(self.sim.state.step)
+            for i in range(min(start_index, len(cfg.steps))):
+                # steps done before the checkpoint whose effect outlives them and is not in the
+                # state (a monitor's recorder) set it up again
+                restore = getattr(cfg.steps[i], "restore", None)
+                if restore is not None:
+                    restore(StepContext(self, i, self.sim.state.step, True))
             for i in range(start_index, len(cfg.steps)):
                 step = cfg.steps[i]
                 resumed = marker is not None and i == start_index
@@ -918,6 +938,10 @@ class Runner:
                 self.observer.record()
             if self.observer.last_frame_step != st.step:
                 self.observer.frame()
+            for smp in self.samplers:
+                if smp.last_step != st.step:
+                    smp.sample()
+                smp.finish()
             if self.vtk is not None and cfg.outputs.vtk.every and st.step % cfg.outputs.vtk.every:
                 self._vtk_frame()
             rep.update(st.step, ke=self.observer.last.get("kinetic"),

@@ -349,7 +349,10 @@ class StepBase(Strict):
       (``ctx.advance(n)`` runs time steps in chunks, with observables, checkpoints and
       interruption between chunks); return a dict of results (numbers) or None. Work done
       before the first ``ctx.advance`` must be skipped when ``ctx.resumed`` (the checkpoint
-      holds its effect).
+      holds its effect);
+    * optional ``restore(ctx)``: on ``--resume``, called for each step done before the
+      checkpoint, to set up again what it left running that the checkpoint does not hold (a
+      ``monitor``'s recorder, :meth:`~geodem.workflow.runner.StepContext.add_sampler`).
     """
 
     __tag__: ClassVar[str] = ""

@@ -11,6 +11,11 @@ velocity           move a group kinematically at a prescribed velocity
 load               apply an external force to a group
 damping            set the global damping of a group
 two_balls_check    TwoBalls against the analytic damped oscillator (period, decay, overshoot)
+monitor            record points, groups (displacement, velocity, stress) and broken bonds
+                   while the later steps run: monitor.csv, monitor.png
+                   (:mod:`geodem.workflow.monitoring`)
+pressure           a normal pressure on a boundary group or a cavity's wall, optionally ramped
+                   (:mod:`geodem.workflow.monitoring`)
 =================  ===========================================================================
 
 A step kind is a :class:`~geodem.workflow.schema.StepBase` subclass registered with

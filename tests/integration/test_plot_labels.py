@@ -264,3 +264,22 @@ def test_legends_of_twin_axis_histories_sit_above_the_curves(tmp_path, saved):
             inside = ((p[:, 0] > box.x0 + 1) & (p[:, 0] < box.x1 - 1)
                       & (p[:, 1] > box.y0 + 1) & (p[:, 1] < box.y1 - 1))
             assert not inside.any()
+
+
+def test_monitor_picture(tmp_path, saved):
+    """monitor.png: every panel labelled with its unit, the legends beside the data."""
+    from geodem.workflow.monitoring import plot_monitor
+
+    cols = ["step", "time [s]", "p.ux [m]", "p.uy [m]", "p.vx [m/s]", "p.vy [m/s]",
+            "g.ux [m]", "g.uy [m]", "g.vx [m/s]", "g.vy [m/s]", "g.sxx [Pa]", "g.sxy [Pa]",
+            "g.syy [Pa]", "broken_bonds [1]"]
+    t = np.linspace(0.0, 1e-3, 30)
+    rows = [[k, tk] + list(RNG.normal(size=11)) + [k] for k, tk in enumerate(t)]
+    assert plot_monitor(tmp_path / "m.png", cols, rows)
+    _check(saved, 0)
+    axes = saved[0]["axes"]
+    assert [a["ylabel"] for a in axes] == ["displacement [m]", "velocity [m/s]",
+                                           "stress (tension +) [Pa]", "broken bonds [1]"]
+    for a in axes:  # the legend lies beside the panel, not over its data
+        box, panel = a["legend"], a["ax"].get_window_extent()
+        assert box.x0 >= panel.x1 - 1
