@@ -11,6 +11,9 @@ velocity           move a group kinematically at a prescribed velocity
 load               apply an external force to a group
 damping            set the global damping of a group
 two_balls_check    TwoBalls against the analytic damped oscillator (period, decay, overshoot)
+excavate           remove a group or the elements in a shape, in stages (geodem.workflow.excavation)
+weaken             lower the strength of a group's bonds or of those crossing a plane, or cut them
+                   (geodem.workflow.excavation)
 =================  ===========================================================================
 
 A step kind is a :class:`~geodem.workflow.schema.StepBase` subclass registered with
