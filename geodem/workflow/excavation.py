@@ -27,8 +27,16 @@ import numpy as np
 from pydantic import model_validator
 
 from geodem.workflow.scene import Shape
-from geodem.workflow.schema import DOF_NAMES, F, Int, Name, Strict, StepBase, register_step, \
-    unknown_group
+from geodem.workflow.schema import (
+    DOF_NAMES,
+    F,
+    Int,
+    Name,
+    StepBase,
+    Strict,
+    register_step,
+    unknown_group,
+)
 
 ORDERS = ("outward", "inward", "x", "-x", "y", "-y", "z", "-z")
 
@@ -268,7 +276,8 @@ class Weaken(StepBase):
         rows, cols = self.selected_bonds(st)
         j = st.nbr[rows, cols]
         pair = rows < j
-        heat0 = sim.energies()["heat_break_normal"] + sim.energies()["heat_break_shear"]
+        e = sim.energies()
+        heat0 = e["heat_break_normal"] + e["heat_break_shear"]
         cracks0 = len(sim.crack_log())
         res = {"bonds_weakened": 0, "bonds_cut": 0, "elements_friction_reduced": 0}
         if self.cut:

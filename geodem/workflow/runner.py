@@ -623,9 +623,11 @@ class StepContext:
         return self.sim.change(fn, book_energy=book_energy, group=group)
 
     def remove_elements(self, mask) -> dict:
-        """Remove the elements selected by ``mask`` (bool (N,) of the current state) between
-        time steps: ``Simulation.remove_elements`` (the energy they carry out is booked as
-        ``removed``), and the run's reference positions and frames follow. Returns its dict."""
+        """Remove the elements selected by ``mask`` (bool (N,) or indices of the current
+        state) between time steps: ``Simulation.remove_elements`` (the energy they carry out is
+        booked as ``removed``), and the run's reference positions and frames follow. Returns
+        its dict (``n_removed``, ``n_left``, ``kinetic``, ``gravity``, ``elastic``,
+        ``removed`` [J])."""
         return self.runner.remove_elements(mask)
 
     def series(self, path: str):
@@ -771,8 +773,13 @@ class Runner:
 
     def remove_elements(self, mask) -> dict:
         """See :meth:`StepContext.remove_elements`."""
-        keep = ~np.asarray(mask, bool)
-        out = self.sim.remove_elements(mask)
+        m = np.asarray(mask)
+        if m.dtype != bool:  # indices
+            sel = np.zeros(self.sim.state.n, bool)
+            sel[m.astype(np.int64)] = True
+            m = sel
+        keep = ~m
+        out = self.sim.remove_elements(m)
         if out["n_removed"]:
             self.built.state = self.sim.state
             self.built.reference = np.ascontiguousarray(self.built.reference[keep])
