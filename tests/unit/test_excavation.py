@@ -272,3 +272,32 @@ def test_bad_inputs_are_refused_naming_the_field(step, where, says):
         _cfg(steps=[step])
     text = str(exc.value)
     assert f": {where}: " in text and says in text, text
+
+
+def test_take_carries_every_array_rotation_included():
+    from geodem.core.state import enable_rotation, take
+
+    st = _sim().state
+    enable_rotation(st)
+    st.mr[:, :, 0] = np.where(st.nbr >= 0, st.nbr + 0.5, 0.0)  # the partner's index, per slot
+    st.w[:, 0] = np.arange(st.n)
+    keep = np.ones(st.n, bool)
+    keep[[0, 5, 17]] = False
+    new = take(st, keep)
+    old = np.flatnonzero(keep)
+    assert new.n == 45 and np.array_equal(new.w[:, 0], old) and new.mr.shape == (45, st.width, 1)
+    valid = new.nbr >= 0
+    # each slot's history moved with its pair: the old partner's index, relabelled
+    assert np.array_equal(new.mr[:, :, 0][valid], old[new.nbr[valid]] + 0.5)
+    assert np.all(new.mr[~valid] == 0.0) and np.all(new.brate[~valid] == 1.0)
+    assert not np.isin(new.nbr[valid], -1).any() and new.groups == st.groups
+
+
+def test_removal_refuses_coupled_fields_and_removing_everything():
+    sim = _sim()
+    with pytest.raises(ValueError, match="no model"):
+        sim.remove_elements(np.ones(sim.state.n, bool))
+    sim.fields.append(type("Field", (), {"kind": "thermal"})())
+    with pytest.raises(ValueError, match="coupled fields \\(thermal\\)"):
+        sim.remove_elements([0])
+    assert sim.state.n == 48
