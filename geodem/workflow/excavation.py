@@ -57,7 +57,8 @@ class Excavate(StepBase):
 
     Stages follow ``order``: ``outward`` (default) by the distance of the element centres from
     the centre (the disc's or box's centre, else the centroid of the elements selected at the
-    start), innermost first; ``inward`` outermost first; ``x``, ``y``, ``z`` by that coordinate,
+    start; in 3-D a disc is a cylinder along y and the distance is from its axis), innermost
+    first; ``inward`` outermost first; ``x``, ``y``, ``z`` by that coordinate,
     lowest first, ``-x``, ``-y``, ``-z`` highest first (``-y`` in 2-D: a pit dug from the top).
     The range of that key over the elements selected when the step starts, ``[lo, hi]``, is cut
     in n bands of equal width; stage k removes the selected elements (their positions then)
@@ -127,7 +128,10 @@ class Excavate(StepBase):
     def _key(self, st, centre) -> np.ndarray:
         o = self.order
         if o in ("outward", "inward"):
-            d = np.sqrt(((st.x - np.asarray(centre)[None, :]) ** 2).sum(axis=1))
+            diff = st.x - np.asarray(centre)[None, :]
+            if st.dim == 3 and self.shape is not None and self.shape.disc is not None:
+                diff[:, 1] = 0.0  # a cylinder along y: the distance from its axis
+            d = np.sqrt((diff ** 2).sum(axis=1))
             return d if o == "outward" else -d
         k = DOF_NAMES.index(o.lstrip("-"))
         return -st.x[:, k] if o.startswith("-") else st.x[:, k].copy()

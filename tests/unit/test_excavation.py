@@ -301,3 +301,20 @@ def test_removal_refuses_coupled_fields_and_removing_everything():
     with pytest.raises(ValueError, match="coupled fields \\(thermal\\)"):
         sim.remove_elements([0])
     assert sim.state.n == 48
+
+
+def test_a_cylinder_in_3d_is_staged_by_the_distance_from_its_axis():
+    cfg = _cfg(dim=3, domain={"box": {"min": [0.0, 0.0, 0.0], "max": [0.12, 0.06, 0.12]}},
+               groups={"base": {"side": "zmin"}})
+    st = cfg.model.build(cfg).state
+    sim = Simulation(st, backend="numpy")
+    x0 = st.x.copy()
+    radial = np.hypot(x0[:, 0] - 0.06, x0[:, 2] - 0.06)
+    inside = radial <= 0.035
+    res = _step("excavate", shape={"disc": {"center": [0.06, 0.03, 0.06], "radius": 0.035}},
+                stages=2).execute(Ctx(sim))
+    lo, hi = radial[inside].min(), radial[inside].max()
+    first = inside & (radial <= lo + 0.5 * (hi - lo) + 1e-12)
+    assert res["key_range"] == pytest.approx([lo, hi])
+    assert res["removed_per_stage"] == [int(first.sum()), int((inside & ~first).sum())]
+    assert 0 < first.sum() < inside.sum() and sim.state.n == len(x0) - int(inside.sum())
