@@ -34,6 +34,7 @@ BUILTINS: dict[str, tuple[str, ...]] = {
                  "geodem.workflow.steps",
                  "geodem.workflow.scene",   # scene: a model composed from parts
                  "geodem.workflow.monitoring",  # monitor, pressure: generic, any model
+                 "geodem.workflow.excavation",  # excavate, weaken
                  "geodem.cases.uniaxial",   # specimen, uniaxial
                  "geodem.cases.brazilian",  # brazilian_disc, brazilian, direct_tension
                  "geodem.cases.triaxial",   # triaxial_box, triaxial

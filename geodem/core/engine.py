@@ -15,9 +15,12 @@ unseen.
 
 Energy balance (PHYSICS.md section 4)::
 
-    E_k + E_g + E_el + Q_visc + Q_break_n + Q_break_s + Q_fric = E_0 + W_ext
+    E_k + E_g + E_el + Q_visc + Q_break_n + Q_break_s + Q_fric + E_removed = E_0 + W_ext
 
-``closure_error`` is the residual divided by the largest energy in play.
+``closure_error`` is the residual divided by the largest energy in play. ``E_removed`` is the
+kinetic, gravity and elastic energy carried out of the model by elements removed between steps
+(``Simulation.remove_elements``, an excavation); the heat and the work the removed elements had
+booked stay in ``Q_*`` and ``W_ext``. It is 0 in a model that loses no element.
 """
 from __future__ import annotations
 
@@ -28,6 +31,11 @@ import numpy as np
 from geodem.backends import select
 from geodem.core import neighbors, timestep
 from geodem.core.state import BONDED, BROKEN_BASE, broken_code, decode_broken
+
+
+#: the books of removed elements kept by ``Simulation.remove_elements`` (``Simulation.gone``)
+GONE_TERMS = ("kinetic", "gravity", "elastic", "heat_viscous", "heat_break_normal",
+              "heat_break_shear", "heat_friction", "work_external")
 
 
 class InstabilityError(RuntimeError):
@@ -251,6 +259,7 @@ class Simulation:
         self._time_ref = (int(state.step), float(state.time))  # crack times: see _harvest_host
         self.fields = []
         self._field_every = 0
+        self._no_removals()
         self.backend = select(backend)
         if state.step == 0:
             # a fresh model: evaluate the initial forces so the first step starts from a = F/m
@@ -456,6 +465,8 @@ class Simulation:
         # is the same however a run was cut into calls (a resumed run, other chunks)
         order = np.lexsort((j, i, step))
         i, j, step, kind = i[order], j[order], step[order], kind[order]
+        if self.ids is not None:  # after a removal: in the numbering of the built model
+            i, j = self.ids[i], self.ids[j]
         self.cracks["i"].extend(i.tolist())
         self.cracks["j"].extend(j.tolist())
         # a code's step is the step that broke it, within this simulation's constant dt, counted
@@ -484,6 +495,8 @@ class Simulation:
                 s.cstate[a, ka[0]] = 0
                 s.cstate[b, kb[0]] = 0
                 lo, hi = min(a, b), max(a, b)
+                if self.ids is not None:
+                    lo, hi = int(self.ids[lo]), int(self.ids[hi])
                 for key, val in (("i", lo), ("j", hi), ("time", s.time), ("type", 0)):
                     self.cracks[key].append(val)
                 n += 1
@@ -539,6 +552,7 @@ class Simulation:
         """Zero the heat/work books and take the current energy as ``E_0``."""
         s = self.state
         self.sync()
+        self.gone = dict.fromkeys(GONE_TERMS, 0.0)
         for k in ("q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext"):
             getattr(s, k)[:] = 0.0
         self.backend.push(("q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext"))
@@ -553,13 +567,20 @@ class Simulation:
         """Energy terms [J]: totals, plus per-group arrays indexed by group name if asked."""
         p = self._parts()
         tot = {k: float(v.sum()) for k, v in p.items()}
+        gone = self.gone  # the books of removed elements (remove_elements): 0 without one
+        for k in ("heat_viscous", "heat_break_normal", "heat_break_shear", "heat_friction",
+                  "work_external"):
+            tot[k] += gone[k]
         tot["heat_total"] = (tot["heat_viscous"] + tot["heat_break_normal"]
                              + tot["heat_break_shear"] + tot["heat_friction"])
-        tot["total"] = tot["kinetic"] + tot["gravity"] + tot["elastic"] + tot["heat_total"]
+        tot["removed"] = gone["kinetic"] + gone["gravity"] + gone["elastic"]
+        tot["total"] = tot["kinetic"] + tot["gravity"] + tot["elastic"] + tot["heat_total"] \
+            + tot["removed"]
         tot["initial"] = self.state.e0
         resid = tot["total"] - self.state.e0 - tot["work_external"]
-        scale = max(self._emech0, tot["kinetic"] + tot["elastic"] + tot["heat_total"],
-                    abs(tot["work_external"]), abs(tot["gravity"] - self._eg0), self._floor)
+        scale = max(self._emech0, tot["kinetic"] + tot["elastic"] + tot["heat_total"]
+                    + gone["kinetic"] + gone["elastic"], abs(tot["work_external"]),
+                    abs(tot["gravity"] + gone["gravity"] - self._eg0), self._floor)
         tot["closure_residual"] = resid
         tot["closure_error"] = abs(resid) / scale
         if by_group:
@@ -660,6 +681,82 @@ class Simulation:
             self.backend.push(("w_ext",))
         return delta
 
+    # ------------------------------------------------------------------ removing elements
+    def _no_removals(self):
+        #: original index (in the model as built) of each element; None: no element removed
+        self.ids = None
+        self.gone = dict.fromkeys(GONE_TERMS, 0.0)
+        self.removals = 0
+
+    def remove_elements(self, mask) -> dict:
+        """Remove the elements selected by ``mask`` (bool (N,) or indices) between steps: an
+        excavation. The one place where a running simulation changes its number of elements.
+
+        The state is replaced by one without them (:func:`geodem.core.state.take`: every
+        array, the rows relabelled with their contact history, the groups kept, so removed
+        elements leave every group), the backend is attached to it again and the forces are
+        evaluated again at the same positions (``dt = 0``: the elements left lose the pull and
+        push of the removed ones at once, no velocity changes). Nothing of this touches the
+        time-step loop; the cost is one copy of the state per call.
+
+        Books: what leaves with the removed elements is kept so the energy balance stays
+        closed: their kinetic and gravity energy and the elastic energy of their contacts and
+        bonds (the drop of the model's elastic energy, [J]) go to the term ``removed`` of
+        :meth:`energies`; the heat and external work they had booked stay in the totals
+        (``gone``). :attr:`ids` maps each element to its index in the model as built, and
+        the crack log is written in that numbering from then on (checkpoints keep both).
+
+        Returns the energy carried out by this call [J]: ``kinetic``, ``gravity``, ``elastic``
+        and their sum ``removed``, plus ``n_removed`` and ``n_left``. ValueError when a coupled
+        field is attached (their per-element arrays are not cut), or when every element would go.
+        """
+        s = self.sync()
+        m = np.asarray(mask)
+        if m.dtype != bool:
+            sel = np.zeros(s.n, bool)
+            sel[m.astype(np.int64)] = True
+            m = sel
+        if m.shape != (s.n,):
+            raise ValueError(f"mask must have shape ({s.n},), got {m.shape}")
+        n_rm = int(m.sum())
+        out = {"n_removed": n_rm, "n_left": int(s.n - n_rm), "kinetic": 0.0, "gravity": 0.0,
+               "elastic": 0.0, "removed": 0.0}
+        if n_rm == 0:
+            return out
+        if self.fields:
+            raise ValueError(f"cannot remove elements from a model with coupled fields "
+                             f"({', '.join(f.kind for f in self.fields)}): their per-element "
+                             f"arrays would not follow; remove elements before coupling them")
+        if n_rm == s.n:
+            raise ValueError(f"removing all {s.n} elements would leave no model")
+        from geodem.core.state import take
+
+        self._harvest()
+        p = self._parts()
+        el_before = float(p["elastic"].sum())
+        for k in GONE_TERMS:
+            if k not in ("kinetic", "gravity", "elastic"):
+                self.gone[k] += float(p[k][m].sum())
+        keep = ~m
+        new = take(s, keep)
+        self.ids = (np.arange(s.n) if self.ids is None else self.ids)[keep]
+        self.state = new
+        self.backend.attach(new)
+        self.backend.push()
+        el_after = float(np.asarray(self.backend.elastic_energy()).sum())
+        out["kinetic"] = float(p["kinetic"][m].sum())
+        out["gravity"] = float(p["gravity"][m].sum())
+        out["elastic"] = el_before - el_after
+        out["removed"] = out["kinetic"] + out["gravity"] + out["elastic"]
+        for k in ("kinetic", "gravity", "elastic"):
+            self.gone[k] += out[k]
+        self._r_min = None
+        self.removals += 1
+        self.refresh_forces()
+        self._harvest()
+        self.backend.settle()
+        return out
+
     # ------------------------------------------------------------------ checkpoints
     def save(self, path) -> None:
         """Write a complete checkpoint (state, energy books, crack log) atomically."""
@@ -675,12 +772,14 @@ class Simulation:
                                             "monitor_every": self.monitor_every,
                                             "overlap_limit": self.overlap_limit,
                                             "time_ref": list(self._time_ref),
+                                            "gone": self.gone, "removals": self.removals,
                                             "next_check": self._next_check,
                                             "next_monitor": self._next_monitor,
                                             "fields": [{"kind": f.kind, "config": f.config(),
                                                         "substeps": f.substeps}
                                                        for f in self.fields]},
-                   extra_arrays=pack_arrays(self.fields))
+                   extra_arrays={**pack_arrays(self.fields),
+                                 **({} if self.ids is None else {"element_ids": self.ids})})
 
     @classmethod
     def load(cls, path, backend=None) -> "Simulation":
@@ -705,6 +804,11 @@ class Simulation:
         ref = extra.get("time_ref", (0, 0.0))  # checkpoints before it: times were step * dt
         sim._time_ref = (int(ref[0]), float(ref[1]))
         sim._eg0, sim._emech0 = extra["eg0"], extra["emech0"]
+        sim._no_removals()
+        sim.gone.update(extra.get("gone") or {})
+        sim.removals = int(extra.get("removals", 0))
+        if "element_ids" in more:
+            sim.ids = np.asarray(more.pop("element_ids"), dtype=np.int64)
         sim._floor = max(1e-12 * 0.5 * float((state.kn * state.r * state.r).sum()), 1e-300)
         sim._dt_bound = timestep.stable_dt_bound(state)
         sim.backend = select(backend)

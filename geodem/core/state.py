@@ -363,3 +363,55 @@ def enable_contact_damping(state: State, restitution=None, zeta_n=None) -> State
     if state.fdash is None:
         state.fdash = np.zeros((state.n, state.dim))
     return state
+
+
+def take(state: State, keep) -> State:
+    """A new state holding only the elements ``keep`` (bool (N,) or increasing indices), every
+    array of the state included (rotation and contact damping too).
+
+    Element arrays are copied for the kept elements in their order; row entries whose partner is
+    kept keep their contact history (``cstate``, ``fs``, ``brate``, ``mr``) and are relabelled to
+    the new numbering, entries to removed elements are dropped and the rows compacted (valid
+    entries first, still sorted by index, width unchanged). Groups (names and ids), gravity,
+    flags, ``dt``, ``step``, ``time``, ``skin`` and ``e0`` are carried over as they are; the rows
+    are not rebuilt (the pairs within the skin are still all there). Used by
+    :meth:`geodem.core.engine.Simulation.remove_elements`."""
+    idx = np.asarray(keep)
+    if idx.dtype == bool:
+        if idx.shape != (state.n,):
+            raise ValueError(f"keep must have shape ({state.n},), got {idx.shape}")
+        idx = np.flatnonzero(idx)
+    idx = idx.astype(np.int64)
+    if idx.size and (idx.min() < 0 or idx.max() >= state.n or np.any(np.diff(idx) <= 0)):
+        raise ValueError(f"keep: increasing element indices in 0..{state.n - 1}")
+    inv = np.full(state.n, -1, np.int64)
+    inv[idx] = np.arange(idx.size)
+    nbr = state.nbr[idx]
+    new = np.where(nbr >= 0, inv[np.maximum(nbr, 0)], -1)
+    valid = new >= 0
+    order = np.argsort(~valid, axis=1, kind="stable")
+    ok = np.take_along_axis(valid, order, axis=1)
+    rows = set(state.row_array_names())
+    empty = {"nbr": -1, "cstate": 0, "fs": 0.0, "brate": 1.0, "mr": 0.0}
+    kw = {}
+    for f in fields(state):
+        val = getattr(state, f.name)
+        name = f.name
+        if name == "nbr":
+            out = np.take_along_axis(new, order, axis=1).astype(state.nbr.dtype)
+            out[~ok] = -1
+        elif name in rows:
+            a = val[idx]
+            o = order.reshape(order.shape + (1,) * (a.ndim - 2))
+            out = np.take_along_axis(a, o, axis=1)
+            out[~ok] = empty[name]
+        elif isinstance(val, np.ndarray) and name != "gravity":
+            out = val[idx]
+        elif isinstance(val, np.ndarray):
+            out = val.copy()
+        elif isinstance(val, dict):
+            out = dict(val)
+        else:
+            out = val
+        kw[name] = np.ascontiguousarray(out) if isinstance(out, np.ndarray) else out
+    return State(**kw)

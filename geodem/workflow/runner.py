@@ -46,8 +46,8 @@ from geodem.workflow.yamlio import load_document
 
 #: energy terms recorded under /observables/energy (keys of Simulation.energies())
 ENERGY_TERMS = ("kinetic", "gravity", "elastic", "heat_viscous", "heat_break_normal",
-                "heat_break_shear", "heat_friction", "heat_total", "work_external", "total",
-                "closure_error")
+                "heat_break_shear", "heat_friction", "heat_total", "work_external", "removed",
+                "total", "closure_error")
 #: per-group energy terms (/observables/groups/<group>/energy/<term>)
 GROUP_ENERGY_TERMS = ("kinetic", "gravity", "elastic", "heat_viscous", "heat_break_normal",
                       "heat_break_shear", "heat_friction", "work_external")
@@ -451,16 +451,26 @@ def dry_run_report(prep: Prepared) -> list[str]:
 
 # ============================================================================ observables
 class Observer:
-    """Records observables (energies, group reactions and displacements, cracks) and frames."""
+    """Records observables (energies, group reactions and displacements, cracks) and frames.
 
-    def __init__(self, sim, built, cfg, h5):
+    Frames hold the members a group had in the model as built (``particles/<group>/id``, in that
+    numbering); an element removed since (``Simulation.remove_elements``) is written as NaN
+    (0 bonds). ``original``: the state as built, when the simulation's elements differ from it
+    (a run resumed after an excavation)."""
+
+    def __init__(self, sim, built, cfg, h5, original=None):
         self.sim, self.built, self.cfg, self.h5 = sim, built, cfg, h5
         st = sim.state
         self.dim = st.dim
         obs = cfg.outputs.observables
         self.energy_groups = _default_groups(st, obs.energy_groups)
         self.groups = _default_groups(st, obs.groups)
-        self.idx = {g: self._members(g) for g in set(self.groups) | set(cfg.outputs.frames.groups)}
+        from geodem.core import groups
+
+        base = st if original is None else original
+        self.idx = {g: groups.members(base, g)
+                    for g in set(self.groups) | set(cfg.outputs.frames.groups)}
+        self._now, self._now_for = {}, None
         self.last = {}
         self.last_obs_step = None
         self.last_frame_step = None
@@ -486,10 +496,20 @@ class Observer:
                 h5.series(f"particles/{g}/{f}", shape, dtype="i4" if f == "bonds" else "f8",
                           unit=unit, chunk_rows=1)
 
-    def _members(self, g):
-        from geodem.core import groups
-
-        return groups.members(self.sim.state, g)
+    def current(self, g):
+        """``(indices now, which of idx[g] remain)`` of group ``g``'s members as built
+        (``None`` for the second while no element was removed)."""
+        ids = self.sim.ids
+        if ids is None:
+            return self.idx[g], None
+        if self._now_for is not ids:
+            self._now, self._now_for = {}, ids
+        if g not in self._now:
+            orig = self.idx[g]
+            k = np.minimum(np.searchsorted(ids, orig), max(ids.size - 1, 0))
+            ok = ids[k] == orig
+            self._now[g] = (k[ok], ok)
+        return self._now[g]
 
     def write_static(self):
         st = self.sim.sync()
@@ -516,7 +536,7 @@ class Observer:
                 h5.append(f"observables/groups/{g}/energy/{k}", step, t, eg[k])
         ref = self.built.reference
         for g in self.groups:
-            idx = self.idx[g]
+            idx = self.current(g)[0]
             h5.append(f"observables/groups/{g}/reaction", step, t, groups.reaction(st, g))
             disp = (st.x[idx] - ref[idx]).mean(axis=0) if idx.size else np.zeros(self.dim)
             h5.append(f"observables/groups/{g}/displacement", step, t, disp)
@@ -538,7 +558,7 @@ class Observer:
         ref = self.built.reference
         step, t = st.step, st.time
         for g in self.cfg.outputs.frames.groups:
-            idx = self.idx[g]
+            idx, ok = self.current(g)
             for f in self.cfg.outputs.frames.fields:
                 if f == "position":
                     val = st.x[idx]
@@ -550,6 +570,11 @@ class Observer:
                     val = st.x[idx] - ref[idx]
                 else:
                     val = (st.cstate[idx] == 1).sum(axis=1).astype(np.int32)
+                if ok is not None:  # removed members: NaN (0 bonds)
+                    full = np.zeros((ok.size,) + val.shape[1:], val.dtype) if f == "bonds" \
+                        else np.full((ok.size,) + val.shape[1:], np.nan)
+                    full[ok] = val
+                    val = full
                 self.h5.append(f"particles/{g}/{f}", step, t, val)
         self.last_frame_step = step
         self.h5.flush()
@@ -604,6 +629,14 @@ class StepContext:
         then ``sampler.finish()``. A step that adds one sets it up again on ``--resume`` in its
         ``restore(ctx)`` (called for the steps done before the checkpoint)."""
         self.runner.samplers.append(sampler)
+
+    def remove_elements(self, mask) -> dict:
+        """Remove the elements selected by ``mask`` (bool (N,) or indices of the current
+        state) between time steps: ``Simulation.remove_elements`` (the energy they carry out is
+        booked as ``removed``), and the run's reference positions and frames follow. Returns
+        its dict (``n_removed``, ``n_left``, ``kinetic``, ``gravity``, ``elastic``,
+        ``removed`` [J])."""
+        return self.runner.remove_elements(mask)
 
     def series(self, path: str):
         """``(step, time, value)`` of a recorded series (e.g. observables/energy/kinetic)."""
@@ -752,6 +785,20 @@ class Runner:
         # as a stop at the target is: the step records its sample at the target first (a
         # checkpoint here, before it, lost that sample on resume)
 
+    def remove_elements(self, mask) -> dict:
+        """See :meth:`StepContext.remove_elements`."""
+        m = np.asarray(mask)
+        if m.dtype != bool:  # indices
+            sel = np.zeros(self.sim.state.n, bool)
+            sel[m.astype(np.int64)] = True
+            m = sel
+        keep = ~m
+        out = self.sim.remove_elements(m)
+        if out["n_removed"]:
+            self.built.state = self.sim.state
+            self.built.reference = np.ascontiguousarray(self.built.reference[keep])
+        return out
+
     def _check_stop(self, ctx):
         if self._stop_signal is not None:
             signum = self._stop_signal
@@ -858,6 +905,7 @@ class Runner:
         prep, cfg = self.prep, self.cfg
         rep = self.reporter
         status, error, code, interrupted_by = "running", None, EXIT_OK, None
+        original = None
         self._install_signals()
         try:
             sim_cfg = cfg.simulation
@@ -884,7 +932,11 @@ class Runner:
                             f"backend {prep.backend}")
                 self.sim = Simulation.load(npz, backend=prep.backend)
                 self.sim.overlap_limit = sim_cfg.overlap_limit
+                original = self.built.state
                 self.built.state = self.sim.state  # the rebuilt one only gave the reference
+                if self.sim.ids is not None:  # elements were removed before the checkpoint
+                    self.built.reference = np.ascontiguousarray(
+                        self.built.reference[self.sim.ids])
                 self.results = dict(marker.get("results") or {})
                 self.summary_extra.update(marker.get("summary_extra") or {})
                 if self.notes:  # what the resume itself found (damaged newer checkpoints)
@@ -899,7 +951,8 @@ class Runner:
                     else len(cfg.steps)
                 start_step = int(marker["step_start"] or 0)
             self._open_outputs(marker)
-            self.observer = Observer(self.sim, self.built, cfg, self.h5)
+            self.observer = Observer(self.sim, self.built, cfg, self.h5,
+                                     original if marker is not None else None)
             if marker is not None:
                 # samples the kept output already holds at the checkpoint's step (a resumed
                 # final checkpoint used to record its last sample and frame twice)

@@ -16,6 +16,9 @@ monitor            record points, groups (displacement, velocity, stress) and br
                    (:mod:`geodem.workflow.monitoring`)
 pressure           a normal pressure on a boundary group or a cavity's wall, optionally ramped
                    (:mod:`geodem.workflow.monitoring`)
+excavate           remove a group or the elements in a shape, in stages (geodem.workflow.excavation)
+weaken             lower the strength of a group's bonds or of those crossing a plane, or cut them
+                   (geodem.workflow.excavation)
 =================  ===========================================================================
 
 A step kind is a :class:`~geodem.workflow.schema.StepBase` subclass registered with
