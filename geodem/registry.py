@@ -43,7 +43,8 @@ BUILTINS: dict[str, tuple[str, ...]] = {
                  "geodem.cases.collapse",   # granular column collapse
                  "geodem.cases.seismic",    # seismic valley, absorbing boundaries
                  "geodem.cases.landslide",  # landslide from an elevation raster
-                 "geodem.cases.tbm"),       # TBM disc cutter
+                 "geodem.cases.tbm",        # TBM disc cutter
+                 "geodem.cases.tunnel"),    # tunnel_check (on a scene + generic steps)
 }
 
 

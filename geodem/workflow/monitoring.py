@@ -208,6 +208,7 @@ class MonitorRecorder:
         self.path = ctx.out_dir / step.file
         st = ctx.state
         self.dim = dim = st.dim
+        self.model = ctx.model  # its reference positions follow an excavation
         self.ref = ctx.model.reference
         comp = COMPONENTS[:dim]
         cols = ["step", "time [s]"]
@@ -216,7 +217,7 @@ class MonitorRecorder:
         if names:
             idx, dist = nearest_elements(self.ref, [step.points[n] for n in names])
             self.points = {n: (int(i), float(dd)) for n, i, dd in zip(names, idx, dist)}
-            self.point_idx = idx
+            self.point_idx = self._built(idx)
         for n in names:
             cols += [f"{n}.u{c} [m]" for c in comp] + [f"{n}.v{c} [m/s]" for c in comp]
         self.groups = {}
@@ -225,7 +226,8 @@ class MonitorRecorder:
         for g in step.groups:
             idx = grp.members(st, g)
             vol = step.volumes.get(g) if step.volumes else None
-            self.groups[g] = (idx, float(vol) if vol is not None else cell_volume(st, idx))
+            self.groups[g] = (self._built(idx),
+                              float(vol) if vol is not None else cell_volume(st, idx))
             cols += [f"{g}.u{c} [m]" for c in comp] + [f"{g}.v{c} [m/s]" for c in comp]
             if step.stress:
                 cols += [f"{g}.s{a}{b} [Pa]" for a, b in pairs]
@@ -235,20 +237,47 @@ class MonitorRecorder:
         self.last_step = None
         self.samples = 0
 
+    # -------------------------------------------------------------- numbering
+    def _built(self, idx) -> np.ndarray:
+        """Element indices of the current state -> their numbers in the model as built (they
+        differ after an excavation: ``Simulation.ids``)."""
+        ids = getattr(self.sim, "ids", None)
+        idx = np.asarray(idx, np.int64)
+        return idx if ids is None else np.asarray(ids, np.int64)[idx]
+
+    def _current(self, built) -> tuple[np.ndarray, np.ndarray]:
+        """Built numbers -> ``(indices in the current state, present)``; an excavated element
+        is not present (its point reads NaN, a group averages over the members left)."""
+        ids = getattr(self.sim, "ids", None)
+        if ids is None:
+            return built, np.ones(len(built), bool)
+        ids = np.asarray(ids, np.int64)  # ascending: a removal keeps the order
+        pos = np.clip(np.searchsorted(ids, built), 0, max(len(ids) - 1, 0))
+        present = (ids[pos] == built) if len(ids) else np.zeros(len(built), bool)
+        return pos, present
+
     # -------------------------------------------------------------- rows
     def row(self) -> list:
         from geodem.measure import contact_stress
 
         sim = self.sim
         st = sim.sync()
+        ref = self.model.reference
         out = [int(st.step), float(st.time)]
         if self.points:
-            idx = self.point_idx
-            u, v = st.x[idx] - self.ref[idx], st.v[idx]
+            idx, present = self._current(self.point_idx)
+            u, v = st.x[idx] - ref[idx], st.v[idx].copy()
+            u[~present] = np.nan
+            v[~present] = np.nan
             for k in range(len(idx)):
                 out += u[k].tolist() + v[k].tolist()
-        for idx, vol in self.groups.values():
-            out += (st.x[idx] - self.ref[idx]).mean(axis=0).tolist()
+        for built, vol in self.groups.values():
+            idx, present = self._current(built)
+            idx = idx[present]
+            if len(idx) == 0:
+                out += [math.nan] * (2 * self.dim + (len(self.pairs) if self.step.stress else 0))
+                continue
+            out += (st.x[idx] - ref[idx]).mean(axis=0).tolist()
             out += st.v[idx].mean(axis=0).tolist()
             if self.step.stress:
                 sig = contact_stress(st, idx, vol)
@@ -426,6 +455,45 @@ class Monitor(StepBase):
 
 
 # ============================================================================ pressure
+# ============================================================================ snapshot
+SNAPSHOT = "{name}_snapshot.npz"
+
+
+@register_step("snapshot")
+class Snapshot(StepBase):
+    """Keep the element positions of this moment in ``<name>_snapshot.npz`` (``x`` [m],
+    ``ids``: each element's number in the model as built, ``step``, ``time`` [s]), for a later
+    step that measures displacements since then (e.g. ``tunnel_check``). A resumed run keeps the
+    file it wrote."""
+
+    example = {"kind": "snapshot", "name": "before"}
+
+    def execute(self, ctx):
+        path = ctx.out_dir / SNAPSHOT.format(name=self.name)
+        if not (ctx.resumed and path.exists()):
+            st = ctx.sim.sync()
+            ids = getattr(ctx.sim, "ids", None)
+            np.savez(path, x=st.x, ids=np.arange(st.n) if ids is None else np.asarray(ids),
+                     step=int(st.step), time=float(st.time))
+        if path.name not in ctx.runner.files:
+            ctx.runner.files.append(path.name)
+        return {"file": path.name, "elements": int(ctx.state.n)}
+
+
+def read_snapshot(out_dir, name: str, sim) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Positions of a :class:`Snapshot` for the elements present now: ``(x_then (n, dim) with
+    NaN rows for elements that were not there, present (n,) bool, {"step", "time"})``."""
+    z = np.load(out_dir / SNAPSHOT.format(name=name))
+    ids = getattr(sim, "ids", None)
+    now = np.arange(sim.state.n) if ids is None else np.asarray(ids, np.int64)
+    then = np.asarray(z["ids"], np.int64)  # ascending: a removal keeps the order
+    pos = np.clip(np.searchsorted(then, now), 0, len(then) - 1)
+    present = then[pos] == now
+    x = np.full((len(now), sim.state.dim), np.nan)
+    x[present] = z["x"][pos[present]]
+    return x, present, {"step": int(z["step"]), "time": float(z["time"])}
+
+
 class CavityDisc(Strict):
     center: list[float] = F(..., unit="m", min_length=2, max_length=3,
                             description="Centre (2-D: a disc; 3-D: a cylinder along y)")
