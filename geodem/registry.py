@@ -44,7 +44,8 @@ BUILTINS: dict[str, tuple[str, ...]] = {
                  "geodem.cases.seismic",    # seismic valley, absorbing boundaries
                  "geodem.cases.landslide",  # landslide from an elevation raster
                  "geodem.cases.tbm",        # TBM disc cutter
-                 "geodem.cases.tunnel"),    # tunnel_check (on a scene + generic steps)
+                 "geodem.cases.tunnel",     # tunnel_check (on a scene + generic steps)
+                 "geodem.cases.slope"),     # slope_stability (strength reduction)
 }
 
 

@@ -19,6 +19,7 @@ Not built yet: random packings (``fill`` takes ``lattice`` only), terrain domain
 """
 from __future__ import annotations
 
+import functools
 import math
 from typing import Literal, Optional, Union
 
@@ -41,9 +42,40 @@ class SceneDisc(Strict):
     radius: float = F(..., unit="m", gt=0, description="Radius")
 
 
+class SceneBand(Strict):
+    point: list[float] = F(..., unit="m", min_length=2, max_length=3,
+                           description="A point of the band's mid-plane")
+    normal: list[float] = F(..., min_length=2, max_length=3,
+                            description="Normal of the band (any length but zero)")
+    thickness: float = F(..., unit="m", gt=0, description="Thickness across the band")
+
+
+class SceneTerrain(Strict):
+    """The ground under an elevation raster down to a base: a 2-D section along ``line`` or a
+    3-D block over ``extent`` (local metres from the raster's lower-left corner)."""
+
+    raster: str = F(..., description="Elevation raster (GeoTIFF or any format GDAL reads; "
+                                     "projected in metres, or geographic: reprojected)")
+    line: Optional[list[list[float]]] = F(None, unit="m", description="2-D: the section "
+                                          "[[x0, y0], [x1, y1]] (default west to east "
+                                          "through the middle)")
+    extent: Optional[list[float]] = F(None, unit="m", min_length=4, max_length=4,
+                                      description="3-D: [xmin, ymin, xmax, ymax] (default the "
+                                                  "raster's)")
+    base_depth: float = F(10.0, unit="m", gt=0, description="Depth of the base below the "
+                                                            "lowest ground in the model")
+
+    def read(self):
+        from geodem.geo import read_elevation
+        from geodem.workflow.models import resolve_path
+
+        return read_elevation(str(resolve_path(self.raster)))
+
+
 class Shape(Strict):
     """One of: ``box``, ``polygon`` (2-D), ``disc``, ``below`` or ``above`` (a horizontal plane:
-    the last coordinate, y in 2-D and z in 3-D, below or above the value)."""
+    the last coordinate, y in 2-D and z in 3-D, below or above the value), ``band`` (a planar
+    layer of a thickness: a dipping weak layer), or, for a domain only, ``terrain``."""
 
     box: Optional[SceneBox] = F(None, description="Box of element centres [m]")
     polygon: Optional[list[list[float]]] = F(None, unit="m", description="Polygon vertices "
@@ -53,13 +85,16 @@ class Shape(Strict):
                                                            "coordinate below this")
     above: Optional[float] = F(None, unit="m", description="Centres with the last "
                                                            "coordinate above this")
+    band: Optional[SceneBand] = F(None, description="Centres within thickness / 2 of a plane")
+    terrain: Optional[SceneTerrain] = F(None, description="Domain only: the ground under an "
+                                                          "elevation raster")
 
     @model_validator(mode="after")
     def _one(self):
-        given = [k for k in ("box", "polygon", "disc", "below", "above")
-                 if getattr(self, k) is not None]
+        names = ("box", "polygon", "disc", "below", "above", "band", "terrain")
+        given = [k for k in names if getattr(self, k) is not None]
         if len(given) != 1:
-            raise ValueError(f"give exactly one of box, polygon, disc, below, above (got "
+            raise ValueError(f"give exactly one of {', '.join(names)} (got "
                              f"{', '.join(given) or 'none'})")
         if self.polygon is not None and (len(self.polygon) < 3 or
                                          any(len(v) != 2 for v in self.polygon)):
@@ -70,10 +105,11 @@ class Shape(Strict):
         out = []
         if self.polygon is not None and dim != 2:
             out.append((path + ("polygon",), "a polygon is 2-D only; use a box or a disc"))
-        for key, obj in (("box", self.box), ("disc", self.disc)):
+        for key, obj in (("box", self.box), ("disc", self.disc), ("band", self.band)):
             if obj is None:
                 continue
-            for f in ("min", "max") if key == "box" else ("center",):
+            for f in {"box": ("min", "max"), "disc": ("center",),
+                      "band": ("point", "normal")}[key]:
                 if len(getattr(obj, f)) != dim:
                     out.append((path + (key, f), f"{dim} coordinates needed"))
         return out
@@ -92,6 +128,12 @@ class Shape(Strict):
                              thickness=math.inf)
         if self.below is not None:
             return x[:, -1] < self.below
+        if self.band is not None:
+            n = np.asarray(self.band.normal, float)
+            dist = (x - np.asarray(self.band.point, float)) @ (n / np.linalg.norm(n))
+            return np.abs(dist) <= 0.5 * self.band.thickness
+        if self.terrain is not None:
+            raise ValueError("a terrain is a domain, not a region's shape")
         return x[:, -1] > self.above
 
 
@@ -193,8 +235,12 @@ class Scene(ModelBase):
     dim: Literal[2, 3] = F(2, description="Dimension")
     d: float = F(..., unit="m", gt=0, description="Element diameter (lattice spacing)")
     domain: Shape = F(..., description="The domain: a box, or a polygon in 2-D")
-    fill: Literal["lattice"] = F("lattice", description="Fill: 'lattice' (close-packed); "
-                                                        "random packings are not built yet")
+    fill: Literal["lattice", "random"] = F(
+        "lattice", description="Fill: 'lattice' (close-packed, diameter d) or 'random' (a "
+                               "packing deposited under gravity, diameters d (1 +- "
+                               "distri_rate), cut by the domain)")
+    distri_rate: float = F(0.2, ge=0, lt=1, description="Random fill: radius spread (d_max / "
+                                                        "d_min = (1 + r) / (1 - r))")
     material: Name = F(..., description="Material of elements in no region")
     regions: list[Region] = F([], description="Ordered regions; a later one overrides")
     interfaces: Literal["bonded", "joint"] = F(
@@ -204,8 +250,26 @@ class Scene(ModelBase):
     groups: dict[Name, SceneGroup] = F({}, description="Named element groups")
     sort: bool = F(True, description="Reorder elements in Morton order (faster runs)")
 
+    def _terrain(self):
+        """The :class:`~geodem.geo.terrain.TerrainModel` of a terrain domain (cached)."""
+        from geodem.workflow.models import resolve_path
+
+        return _terrain_model(self._terrain_key())
+
+    def _terrain_key(self):
+        from geodem.workflow.models import resolve_path
+
+        t = self.domain.terrain
+        path = resolve_path(t.raster)
+        return (str(path), path.stat().st_mtime if path.exists() else 0.0, float(self.d),
+                int(self.dim), None if t.line is None else tuple(map(tuple, t.line)),
+                None if t.extent is None else tuple(t.extent), float(t.base_depth))
+
     def _bounds(self):
         s = self.domain
+        if s.terrain is not None:
+            x = self._terrain().x
+            return x.min(axis=0) - 0.5 * self.d, x.max(axis=0) + 0.5 * self.d
         if s.box is not None:
             return np.asarray(s.box.min, float), np.asarray(s.box.max, float)
         if s.polygon is not None:
@@ -222,6 +286,11 @@ class Scene(ModelBase):
         return [int(math.floor(e / (s * self.d) + 1e-9)) + 1 for e, s in zip(ext, spacing)]
 
     def n_elements(self):
+        if self.domain.terrain is not None:
+            try:
+                return int(len(self._terrain().x))
+            except Exception:  # noqa: BLE001 - reported by check()
+                return 0
         if self._bounds() is None or len(self._bounds()[0]) != self.dim:
             return 0
         return int(np.prod(self._counts(), dtype=np.float64))
@@ -261,10 +330,13 @@ class Scene(ModelBase):
     def check(self, cfg):
         out = []
         dom = self.domain
-        if dom.disc is not None or dom.below is not None or dom.above is not None:
-            out.append((("domain",), "the domain is a box or (2-D) a polygon"))
+        if (dom.disc is not None or dom.below is not None or dom.above is not None
+                or dom.band is not None):
+            out.append((("domain",), "the domain is a box, a polygon (2-D) or a terrain"))
         out += dom.problems(self.dim, ("domain",))
-        if not out:
+        if dom.terrain is not None:
+            out += self._terrain_problems()
+        elif not out:
             lo, hi = self._bounds()
             if np.any(hi - lo < self.d):
                 out.append((("domain",), f"the domain is thinner than one element (d = "
@@ -273,7 +345,10 @@ class Scene(ModelBase):
             out.append((("gravity",), f"{len(self.gravity)} components for dim = {self.dim}"))
         names = [n for n, _, _ in self.slots() if n is not None]
         for k, r in enumerate(self.regions):
-            if r.shape is not None:
+            if r.shape is not None and r.shape.terrain is not None:
+                out.append((("regions", k, "shape", "terrain"), "a terrain is a domain, not a "
+                                                                "region's shape"))
+            elif r.shape is not None:
                 out += r.shape.problems(self.dim, ("regions", k, "shape"))
             else:
                 out += self._image_problems(r.image, ("regions", k, "image"))
@@ -286,6 +361,28 @@ class Scene(ModelBase):
                 out.append((("groups", name, "region"), f"no region named {g.region!r}; "
                                                         f"allowed: {', '.join(names) or 'none'}"))
         return out + group_problems(self.groups, self.dim)
+
+    def _terrain_problems(self):
+        from geodem.geo.errors import GeometryError
+        from geodem.workflow.models import resolve_path
+
+        t, path = self.domain.terrain, ("domain", "terrain")
+        if self.dim == 2 and t.extent is not None:
+            return [(path + ("extent",), "a 2-D scene is a section: give line, not extent")]
+        if self.dim == 3 and t.line is not None:
+            return [(path + ("line",), "a 3-D scene is a block: give extent, not line")]
+        if t.line is not None and (len(t.line) != 2 or any(len(v) != 2 for v in t.line)):
+            return [(path + ("line",), "two points [[x0, y0], [x1, y1]] (local m)")]
+        if not resolve_path(t.raster).exists():
+            return [(path + ("raster",), f"raster not found: {t.raster} (looked in the working "
+                                         f"directory and the geodem source tree)")]
+        try:
+            self._terrain()
+        except GeometryError as exc:
+            field = "raster" if "raster" in str(exc).lower() else (
+                "line" if t.line is not None and "line" in str(exc) else "base_depth")
+            return [(path + (field,), str(exc))]
+        return []
 
     def _image_problems(self, im, path):
         from geodem.geo.errors import GeometryError
@@ -308,12 +405,18 @@ class Scene(ModelBase):
 
         d = self.d
         lo, hi = self._bounds()
-        c = self._counts()
-        x = fcc_lattice(*c, d) if self.dim == 3 else triangular_lattice(*c, d)
-        x = x + lo + 0.5 * d
-        tol = 1e-9 * d
-        # whole elements inside the bounding box; in a polygon, centres inside
-        x = x[self.domain.mask(x) & np.all(x <= hi - 0.5 * d + tol, axis=1)]
+        radius = 0.5 * d
+        if self.fill == "random":
+            x, radius = self._random_fill(cfg, lo, hi)
+        elif self.domain.terrain is not None:
+            x = np.array(self._terrain().x, float)  # local: (along the line, z) or (x, y, z)
+        else:
+            c = self._counts()
+            x = fcc_lattice(*c, d) if self.dim == 3 else triangular_lattice(*c, d)
+            x = x + lo + 0.5 * d
+            tol = 1e-9 * d
+            # whole elements inside the bounding box; in a polygon, centres inside
+            x = x[self.domain.mask(x) & np.all(x <= hi - 0.5 * d + tol, axis=1)]
         if len(x) == 0:
             raise BuildError(("domain",), "the domain holds no element")
         region = self.region_ids(x)
@@ -327,7 +430,7 @@ class Scene(ModelBase):
                   for k, name in enumerate(mats)}
         per = {key: np.array([params[int(k)][key] for k in region], float)
                for key in ("kn", "ks", "xb", "fs0", "mu", "rho")}
-        st = bonded_state(x, 0.5 * d, density=per["rho"], kn=per["kn"], ks=per["ks"],
+        st = bonded_state(x, radius, density=per["rho"], kn=per["kn"], ks=per["ks"],
                           xb=per["xb"], fs0=per["fs0"], mu=per["mu"], gap=1e-6 * d)
         for k in params:
             if params[k]["mass"] is not None:
@@ -343,6 +446,33 @@ class Scene(ModelBase):
         return BuiltModel(st, st.x.copy(), self.n_across(),
                           {"d": d, "diameter": d, "elements_by_region": counts,
                            "joint_bonds_cut": cut})
+
+    def _random_fill(self, cfg, lo, hi):
+        """A random packing of the domain's bounding box (random placement, then deposition
+        under gravity: :mod:`geodem.build.packing`), cut by the domain (a terrain: by
+        :func:`~geodem.geo.terrain.terrain_model` on the packing); returns ``(x, r)``."""
+        from geodem.build import packing
+        from geodem.core import groups as grp
+
+        d, dim = self.d, self.dim
+        lo = np.asarray(lo, float)
+        hi = np.asarray(hi, float) + np.r_[np.zeros(dim - 1), 2.0 * d]  # it settles lower
+        seed = int(cfg.metadata.seed or 0)
+        phi = 0.84 if dim == 2 else 0.63
+        x, r = packing.random_placement((np.zeros(dim), hi - lo), porosity=1.0 - 1.1 * phi,
+                                        d_mean=d, distri_rate=self.distri_rate, seed=seed)
+        dep = packing.deposition_state(x, r, (np.zeros(dim), hi - lo),
+                                       rho=element_params(cfg, self.material, d, dim)["rho"])
+        packing.deposit(dep)
+        s = grp.members(dep, "sample")
+        px, pr = dep.x[s] + lo, dep.r[s].copy()
+        if self.domain.terrain is not None:
+            tm = _terrain_model(self._terrain_key(), packing=(px, pr))
+            return np.array(tm.x, float), np.array(tm.r, float)
+        lo0, hi0 = self._bounds()
+        keep = self.domain.mask(px) & np.all((px - pr[:, None] >= lo0 - 1e-9 * d)
+                                             & (px + pr[:, None] <= hi0 + 1e-9 * d), axis=1)
+        return px[keep], pr[keep]
 
     def region_ids(self, x) -> np.ndarray:
         """Region index per element (the last region wins): 0 for none, k + 1 for
@@ -386,6 +516,38 @@ class Scene(ModelBase):
             if not sel.any():
                 raise BuildError(("groups", name), f"group {name!r} selects no element")
             grp.add_group(st, name, sel)
+
+
+@functools.lru_cache(maxsize=4)
+def _read_top(path, mtime):
+    from geodem.geo import read_elevation
+
+    return read_elevation(path)
+
+
+def _terrain_model(key, packing=None):
+    """Element centres under a terrain: :func:`geodem.geo.terrain.terrain_model` (a close-packed
+    lattice, or ``packing = (x, r)``, cut by the ground, down to ``base_depth`` below its lowest
+    point). The lattice model is cached."""
+    if packing is None:
+        return _terrain_lattice(key)
+    from geodem.geo import terrain_model
+
+    path, mtime, d, dim, line, extent, base_depth = key
+    base_z = _terrain_lattice(key).base_z
+    return terrain_model(_read_top(path, mtime), d, base_z=base_z, dim=dim, body="ground",
+                         line=None if line is None else [list(p) for p in line],
+                         extent=extent, packing=packing)
+
+
+@functools.lru_cache(maxsize=4)
+def _terrain_lattice(key):
+    from geodem.geo import terrain_model
+
+    path, mtime, d, dim, line, extent, base_depth = key
+    return terrain_model(_read_top(path, mtime), d, base_depth=base_depth, dim=dim,
+                         body="ground", line=None if line is None else [list(p) for p in line],
+                         extent=extent)
 
 
 def cut_interfaces(state, region) -> int:

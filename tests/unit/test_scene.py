@@ -171,3 +171,54 @@ def test_an_image_with_an_unmapped_colour_or_missing_file_is_refused(tmp_path):
     with pytest.raises(WorkflowError) as e:
         _cfg(regions=[{"image": image, "material": "rock"}])
     assert "image.colours" in str(e.value)
+
+
+# ============================================================================ terrain, band, random
+HILL = str(Path(__file__).resolve().parents[2] / "workflows" / "data" / "hill.tif")
+
+
+def test_a_terrain_domain_is_the_ground_under_the_raster():
+    from geodem.geo import read_elevation
+    from geodem.geo.terrain import surface_function
+
+    line = [[0.0, 150.0], [600.0, 150.0]]
+    cfg = _cfg(d=10.0, domain={"terrain": {"raster": HILL, "line": line, "base_depth": 20.0}},
+               groups={"base": {"side": "ymin"}})
+    st = cfg.model.build(cfg).state
+    ground = surface_function(read_elevation(HILL))
+    s, z = st.x[:, 0], st.x[:, 1]
+    top = ground(np.c_[s, np.full(len(s), 150.0)])
+    assert st.n == cfg.model.n_elements() > 0
+    assert np.all(z <= top + 1e-6)                     # under the ground
+    assert z.min() == pytest.approx(400.1 - 20.0 + 5.0, abs=5.0)  # the base: 20 m below the valley
+    assert s.min() >= 0.0 and s.max() <= 600.0
+
+
+def test_a_band_selects_centres_within_half_its_thickness_of_a_plane():
+    n = np.array([0.6, 0.8])
+    built = _build(regions=[{"name": "weak", "material": "clay",
+                             "shape": {"band": {"point": [0.3, 0.15], "normal": n.tolist(),
+                                                "thickness": 0.05}}}])
+    st = built.state
+    inside = np.abs((st.x - [0.3, 0.15]) @ n) <= 0.025
+    assert np.allclose(st.kn[inside], CLAY["kn"]) and np.allclose(st.kn[~inside], ROCK["kn"])
+    assert built.info["elements_by_region"]["weak"] == int(inside.sum()) > 10
+
+
+def test_a_random_fill_lies_inside_the_box_and_repeats_for_its_seed():
+    a = _build(fill="random").state
+    b = _build(fill="random").state
+    r = a.r
+    assert np.array_equal(a.x, b.x)
+    assert np.all(a.x - r[:, None] >= -1e-9) and np.all(a.x + r[:, None] <= [0.6 + 1e-9, 0.3 + 1e-9])
+    assert r.max() / r.min() <= 1.2 / 0.8 + 1e-9     # distri_rate 0.2
+    assert 0.7 * 9 * 30 + 8 * 29 * 0.7 < a.n          # most of the lattice's count
+
+
+def test_terrain_inputs_are_checked():
+    with pytest.raises(WorkflowError) as e:
+        _cfg(d=10.0, domain={"terrain": {"raster": "nothing.tif"}})
+    assert "raster not found" in str(e.value) and "domain.terrain.raster" in str(e.value)
+    with pytest.raises(WorkflowError) as e:
+        _cfg(d=10.0, domain={"terrain": {"raster": HILL, "extent": [0, 0, 100, 100]}})
+    assert "give line, not extent" in str(e.value)
