@@ -37,7 +37,7 @@ class SlopeStability(StepBase):
     """Strength reduction of a group's bonds and friction by trial factors until the slope moves
     on: the factor of safety (geodem.cases.slope)."""
 
-    example = {"kind": "slope_stability", "group": "weak", "factors": [1.0, 2.0],
+    example = {"kind": "slope_stability", "group": "top", "factors": [1.0, 2.0],
                "nsteps": 100}
     group: Name = F(..., description="Group whose bonds (touching it) and friction are reduced")
     watch: Name = F("all", description="Group whose mean displacement decides failure")
@@ -95,6 +95,7 @@ class SlopeStability(StepBase):
         st.mu[start["elements"]] = start["mu"] / factor
         ctx.sim.backend.push(("brate", "props"))
         ctx.sim.refresh_forces()  # bonds beyond their new strength break now
+        ctx.sim.sync()  # the forces it computed, back on the host before the next run
 
     # ------------------------------------------------------------------ run
     def execute(self, ctx):

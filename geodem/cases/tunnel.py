@@ -33,6 +33,7 @@ is here:
 from __future__ import annotations
 
 import math
+from typing import Optional
 
 import numpy as np
 
@@ -63,9 +64,10 @@ class TunnelCheck(StepBase):
     """Radial displacement of a tunnel's wall since a snapshot against Kirsch's solution, the
     convergence and the damaged zone (geodem.cases.tunnel)."""
 
-    example = {"kind": "tunnel_check", "since": "in_situ_state", "center": [2.0, 2.0],
-               "radius": 0.3, "pressure": 1.0e6}
-    since: Name = F(..., description="Name of the snapshot step taken before the excavation")
+    example = {"kind": "tunnel_check", "center": [0.025, 0.022], "radius": 0.008,
+               "pressure": 1.0e6}
+    since: Optional[Name] = F(None, description="Name of the snapshot step taken before the "
+                                                "excavation (default: the model as built)")
     center: list[float] = F(..., unit="m", min_length=2, max_length=2,
                             description="Axis of the tunnel")
     radius: float = F(..., unit="m", gt=0, description="Radius a of the excavated disc")
@@ -80,7 +82,7 @@ class TunnelCheck(StepBase):
         names = [s.name for s in cfg.steps]
         k = names.index(self.name) if self.name in names else len(names)
         snaps = [s.name for s in cfg.steps[:k] if s.kind == "snapshot"]
-        if self.since not in snaps:
+        if self.since is not None and self.since not in snaps:
             out.append((("since",), f"no snapshot step named {self.since!r} before this step; "
                                     f"allowed: {', '.join(snaps) or 'none (add a snapshot)'}"))
         return out
@@ -90,7 +92,11 @@ class TunnelCheck(StepBase):
 
         sim = ctx.sim
         st = sim.sync()
-        x0, present, when = read_snapshot(ctx.out_dir, self.since, sim)
+        if self.since is None:  # the model as built (rows kept in step with an excavation)
+            x0 = np.array(ctx.model.reference, float)
+            present, when = np.ones(st.n, bool), {"step": 0, "time": -np.inf}
+        else:
+            x0, present, when = read_snapshot(ctx.out_dir, self.since, sim)
         c = np.asarray(self.center, float)
         d = float(np.mean(2.0 * st.r))
         a = float(self.radius)
@@ -109,7 +115,7 @@ class TunnelCheck(StepBase):
         kirsch = kirsch_radial(self.pressure, a, r_ring, E, nu)
         lame = lame_radial(self.pressure, a, b, r_ring, E, nu)
         cracks = self._cracks_since(sim, when["time"], st, c)
-        res = {"since": self.since, "since_step": when["step"], "ring_elements": int(ring.sum()),
+        res = {"since": self.since or "the model as built", "since_step": when["step"], "ring_elements": int(ring.sum()),
                "ring_radius": r_ring, "radius": a, "pressure": float(self.pressure),
                "E_lattice": E, "nu_lattice": nu, "outer_half_width": b,
                "wall_displacement": u_wall, "wall_displacement_std": float(u_in[ring].std()),
