@@ -31,7 +31,9 @@ and the ``triaxial`` step.
      servo-controlled at ``sigma3``; it stops when the deviator has fallen below ``drop`` x its
      peak after the peak (and the strain is at least 1.5 x the strain at the peak: a crack burst
      in a small specimen can halve the stress for a moment), when the nominal strain reaches
-     ``max_strain``, or when a platen gets so close to a lateral wall that they would touch.
+     ``max_strain``, when a platen gets so close to a lateral wall that they would touch, or
+     when two elements overlap by more than 0.35 x the smaller radius (``crushed``: an element
+     squeezed into a corner between a platen and a lateral wall at high confinement).
 
   **Servo** (PFC style), every ``servo_interval`` = n time steps, for each servo-controlled wall
   ``w`` with area ``A_w``, measured stress ``sigma_w`` and target ``sigma_t``::
@@ -96,6 +98,7 @@ from typing import Literal, Optional
 import numpy as np
 
 from geodem.cases.common import needs_model, read_rows
+from geodem.core.checks import max_overlap
 from geodem.workflow.animation import label_map, legend_outside, pyplot
 from geodem.workflow.material import (SpecimenMaterial, box_size_problems, material_problems,
                                       specimen_material)
@@ -1001,6 +1004,17 @@ class _Run:
                 ctx.log(f"warning: sigma3 = {s3:.4g} Pa: a platen came within 0.05 d_mean of a "
                         "lateral wall; test stopped (lower max_strain)")
                 break
+            if due:
+                worst, a, b = max_overlap(st.x, st.r, st.nbr)
+                if worst > CRUSHED_OVERLAP:
+                    # an element squeezed into a corner between a platen and a lateral wall
+                    # (or crushed in a band) long after the peak: stop the stage before the
+                    # engine's overlap limit (0.5) fails the whole run
+                    reason = "crushed"
+                    ctx.log(f"warning: sigma3 = {s3:.4g} Pa: elements {a} and {b} overlap by "
+                            f"{worst:.2f} x the smaller radius (> {CRUSHED_OVERLAP}); test "
+                            "stopped (lower max_strain or the strain rate)")
+                    break
             vel = w.servo(st, lat_targets, p.servo_gain, self.n, p.max_rate())
             w.set_velocities(ctx, vel)
             self._target(min(lmax, s + self.n))
@@ -1100,6 +1114,8 @@ class _Run:
 
 
 SOFTENED = 0.95  # a stage stopped by max_strain has peaked if q fell below this x its maximum
+#: overlap (x the smaller radius) at which a stage stops as crushed; the engine fails at 0.5
+CRUSHED_OVERLAP = 0.35
 
 
 def has_peaked(reason: str, dev, i: int) -> bool:
