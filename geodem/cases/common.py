@@ -10,6 +10,7 @@ from typing import Optional
 import numpy as np
 
 from geodem.workflow.animation import figure_rgb, pyplot, save_gif
+from geodem.workflow.monitoring import append_csv, write_csv  # noqa: F401 (the cases' CSV helpers)
 from geodem.workflow.schema import F, StepBase
 
 
@@ -29,19 +30,6 @@ def read_rows(path, step, ints=(), step_column: int = 0) -> list:
     with open(path) as f:
         return [[int(v) if k in ints else float(v) for k, v in enumerate(r)]
                 for r in list(csv.reader(f))[1:] if int(float(r[step_column])) <= step]
-
-
-def write_csv(path, header, rows) -> None:
-    """A new CSV: ``header`` then ``rows``."""
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        w.writerows(rows)
-
-
-def append_csv(path, row) -> None:
-    with open(path, "a", newline="") as f:
-        csv.writer(f).writerow(row)
 
 
 # ============================================================================ pictures

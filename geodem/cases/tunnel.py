@@ -136,15 +136,12 @@ class TunnelCheck(StepBase):
     def _cracks_since(sim, t0, st, c) -> np.ndarray:
         """Distances from the axis [m] of the bonds broken after time ``t0`` whose two elements
         are still there (crack log numbering: the model as built)."""
+        from geodem.workflow.monitoring import current_rows
+
         log = sim.crack_log()
         log = log[log["time"] > t0]
-        ids = getattr(sim, "ids", None)
-        now = np.arange(st.n) if ids is None else np.asarray(ids, np.int64)
-        out = []
-        for col in ("i", "j"):
-            pos = np.clip(np.searchsorted(now, log[col]), 0, max(len(now) - 1, 0))
-            out.append((pos, now[pos] == log[col]))
-        (pi, oki), (pj, okj) = out
+        pi, oki = current_rows(sim, log["i"])
+        pj, okj = current_rows(sim, log["j"])
         ok = oki & okj
         mid = 0.5 * (st.x[pi[ok]] + st.x[pj[ok]])
         return np.hypot(mid[:, 0] - c[0], mid[:, 1] - c[1])

@@ -195,6 +195,21 @@ def add_load(sim, idx, df) -> None:
 
 
 # ============================================================================ monitor
+def current_rows(sim, built) -> tuple[np.ndarray, np.ndarray]:
+    """Element numbers of the model as built -> ``(indices in the current state, present)``:
+    they differ after an excavation (``Simulation.ids``, ascending: a removal keeps the order);
+    an excavated element is not present."""
+    built = np.asarray(built, np.int64)
+    ids = getattr(sim, "ids", None)
+    if ids is None:
+        return built, np.ones(len(built), bool)
+    ids = np.asarray(ids, np.int64)
+    if len(ids) == 0:
+        return np.zeros(len(built), np.int64), np.zeros(len(built), bool)
+    pos = np.clip(np.searchsorted(ids, built), 0, len(ids) - 1)
+    return pos, ids[pos] == built
+
+
 class MonitorRecorder:
     """The per-sample recorder of a ``monitor`` step (see the module doc); registered with
     :meth:`~geodem.workflow.runner.StepContext.add_sampler`."""
@@ -246,15 +261,7 @@ class MonitorRecorder:
         return idx if ids is None else np.asarray(ids, np.int64)[idx]
 
     def _current(self, built) -> tuple[np.ndarray, np.ndarray]:
-        """Built numbers -> ``(indices in the current state, present)``; an excavated element
-        is not present (its point reads NaN, a group averages over the members left)."""
-        ids = getattr(self.sim, "ids", None)
-        if ids is None:
-            return built, np.ones(len(built), bool)
-        ids = np.asarray(ids, np.int64)  # ascending: a removal keeps the order
-        pos = np.clip(np.searchsorted(ids, built), 0, max(len(ids) - 1, 0))
-        present = (ids[pos] == built) if len(ids) else np.zeros(len(built), bool)
-        return pos, present
+        return current_rows(self.sim, built)
 
     # -------------------------------------------------------------- rows
     def row(self) -> list:
