@@ -605,6 +605,12 @@ RollingFrictionOpt = Annotated[Optional[float], typer.Option(
                                                  "rotation on).")]
 
 
+FitOpt = Annotated[Optional[str], typer.Option(
+    "--fit", help="How the UCS test fits E and nu: 'window' (10-50 % of the peak) or "
+                  "'elastic' (the part of it below the crack-initiation stress; "
+                  "docs/calibration.md, 'Elastic constants before the cracks').")]
+
+
 def _rotation_structure(bond_moment, rolling_friction) -> dict:
     """The rotation keys of a micro-structure from --bond-moment / --rolling-friction (empty
     when neither is given)."""
@@ -680,6 +686,7 @@ def calibrate_cmd(
         "--packings", min=1, max=10, help="Measure every iteration on this many packings "
                                           "(seeds SEED, SEED+1, ...) and match their mean "
                                           "(that many times the cost).")] = 1,
+    fit: FitOpt = None,
     backend: Annotated[Optional[str], typer.Option(
         "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
 ):
@@ -690,6 +697,7 @@ def calibrate_cmd(
 
     if prefer not in ("Cu", "Tu"):
         _fail(f"--prefer {prefer!r}: allowed: Cu or Tu", USER_ERROR)
+    _check_fit(fit)
     mat = load_material(material)
     path = material_path(material)
     o = _fresh_out_dir(out, overwrite)
@@ -709,7 +717,7 @@ def calibrate_cmd(
                                ucs_size=size, seed=seed, iterations=iterations,
                                backend=backend, prefer=prefer, structure=structure,
                                check_reach=not force, friction=friction,
-                               packings=packings)
+                               packings=packings, fit=fit or "window")
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
     if not force:
@@ -776,6 +784,7 @@ def rock_cmd(
         "mean and standard deviation."))] = 1,
     seed: Annotated[Optional[int], typer.Option("--seed", min=0, help=(
         "Packing seed of the first specimen (default: the calibration's)."))] = None,
+    fit: FitOpt = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
 ):
@@ -785,6 +794,7 @@ def rock_cmd(
     from geodem.materials import STRUCTURE_KEYS
     from geodem.materials_library import load_material
 
+    _check_fit(fit)
     mat = load_material(material)
     cal = (mat.calibrated or {}).get(f"{dim}d")
     if cal is None:
@@ -807,7 +817,8 @@ def rock_cmd(
         specs = [CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim,
                                  d_mean=float(sp.get("d_mean", 0.01 if dim == 3 else 0.005)),
                                  ucs_size=size, seed=first + k, iterations=1,
-                                 structure=structure) for k in range(packings)]
+                                 structure=structure, fit=fit or sp.get("fit", "window"))
+                 for k in range(packings)]
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
     con = _out()
@@ -831,6 +842,11 @@ def rock_cmd(
             for key in spread["mean"]), highlight=False)
 
 
+def _check_fit(fit) -> None:
+    if fit not in (None, "window", "elastic"):
+        _fail(f"--fit {fit!r}: allowed: window or elastic", USER_ERROR)
+
+
 def _rock_once(spec, el, folder, friction: bool) -> dict:
     """One packing of ``geodem rock``: the UCS, direct-tension and Brazilian runs (and the
     friction test) in ``folder``; returns its summary."""
@@ -844,6 +860,7 @@ def _rock_once(spec, el, folder, friction: bool) -> dict:
                "structure": spec.structure, "element": el,
                "measured": {k: m[k] for k in ("E", "nu", "Cu", "Tu")},
                "targets": {k: t[k] for k in ("E", "nu", "Cu", "Tu")},
+               "fit": spec.fit, "fits": m["fits"],
                "ratio": m["Cu"] / m["Tu"], "target_ratio": t["Cu"] / t["Tu"],
                "brazilian": b, "wall_time_s": m["wall_time_s"] + b["wall_time_s"]}
     if friction:
@@ -861,6 +878,12 @@ def _rock_line(r: dict) -> str:
             f"({m['nu'] - t['nu']:+.3f}), Cu {m['Cu']:.4g} Pa ({m['Cu'] / t['Cu'] - 1:+.1%}), "
             f"Tu {m['Tu']:.4g} Pa ({m['Tu'] / t['Tu'] - 1:+.1%}), Cu / Tu {r['ratio']:.3g} "
             f"(lab {r['target_ratio']:.3g}); Brazilian {b:.4g} Pa ({b / t['Tu'] - 1:+.1%})")
+    other = "elastic" if r.get("fit", "window") == "window" else "window"
+    o = r.get("fits", {}).get(other)
+    if o:
+        w = o["fit_window"]
+        text += (f"; {other} fit ({100 * w[0]:.0f}-{100 * w[1]:.0f} % of the peak): "
+                 f"E {o['E']:.4g} Pa, nu {o['nu']:.3f}")
     if "friction_test" in r:
         phi = r["friction_test"]["phi"]
         text += (f"; phi {phi:.1f} deg ({phi - r['target_phi']:+.1f})" if phi is not None

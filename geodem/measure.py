@@ -12,6 +12,8 @@ Functions (docs/materials.md, VALIDATION.md "uniaxial / triaxial", "Brazilian di
 * :func:`youngs_modulus` - slope of the linear part of the pre-peak stress-strain curve;
 * :func:`poisson_ratio` - ``-slope`` of lateral vs axial strain over the same part;
 * :func:`peak` - UCS (peak stress) and the strain at the peak;
+* :func:`elastic_window` - the part of the 10-50 % window before the cracks begin (where E and nu
+  are fitted);
 * :func:`brazilian_tensile_strength` - ``2 P / (pi D t)``;
 * :func:`crack_start_offset` - mean distance of the first cracks from the disc centre / radius;
 * :func:`mohr_coulomb_fit` - cohesion, friction angle and UCS from triaxial peaks;
@@ -127,6 +129,49 @@ def peak(strain, stress) -> tuple[float, float]:
     strain, stress = _curve("strain", strain, "stress", stress, min_points=1)
     i = int(np.argmax(stress))
     return float(stress[i]), float(strain[i])
+
+
+def elastic_window(stress, cracks, bonds, window=(0.1, 0.5), crack_fraction=0.005):
+    """The linear (pre-damage) part of a compression record, where E and nu are fitted.
+
+    ``window`` = (lo, hi) in fractions of the peak stress, its upper end lowered to the
+    crack-initiation stress ``sigma_ci``: the largest pre-peak stress recorded before the broken
+    bonds ``cracks`` (cumulative, per point) exceed ``crack_fraction x bonds`` (ISRM's "average
+    modulus of the linear portion"; Martin & Chandler 1994, Int. J. Rock Mech. 31(6), for the
+    crack-initiation threshold). A bonded packing whose bonds break diffusely from a third of
+    its peak dilates strongly inside a fixed 10-50 % window; fitted there, nu measures that
+    dilation, not the elastic ratio. ``crack_fraction`` None keeps ``window``.
+
+    Returns ``(lo, hi, sigma_ci)``: ``hi`` is never set so low that fewer than
+    :data:`MIN_POINTS` points remain from ``lo`` (it is then the stress of the last of those
+    points / peak); ``sigma_ci`` is None when the cracks stay below the threshold before the
+    peak.
+    """
+    lo, hi = _window(window)
+    stress = np.asarray(stress, float)
+    cracks = np.asarray(cracks, float)
+    if stress.shape != cracks.shape:
+        raise ValueError(f"stress and cracks differ in length ({stress.size} and {cracks.size})")
+    ipk = int(np.argmax(stress))
+    pk = float(stress[ipk])
+    if not pk > 0:
+        raise ValueError(f"peak stress is {pk:g}: no compressive loading in the record "
+                         "(compression positive)")
+    if crack_fraction is None:
+        return lo, hi, None
+    if not (bonds > 0 and 0.0 < crack_fraction < 1.0):
+        raise ValueError(f"bonds = {bonds!r}, crack_fraction = {crack_fraction!r}: allowed "
+                         "bonds > 0 and 0 < crack_fraction < 1")
+    over = np.flatnonzero(cracks[: ipk + 1] > crack_fraction * bonds)
+    if over.size == 0:
+        return lo, hi, None
+    before = stress[: over[0]]
+    sigma_ci = float(before.max()) if before.size else 0.0
+    top = sigma_ci / pk
+    pre = np.sort(stress[: ipk + 1][stress[: ipk + 1] >= lo * pk])
+    if pre.size >= MIN_POINTS:
+        top = max(top, float(pre[MIN_POINTS - 1]) / pk)
+    return lo, float(min(hi, max(top, lo))), sigma_ci
 
 
 # --------------------------------------------------------------------------------- Brazilian

@@ -25,7 +25,9 @@
   - crack counts by type.
 
   Results: ``E`` (:func:`~geodem.measure.youngs_modulus`, 10-50 % of the peak), ``nu``
-  (same window), ``ucs``, ``peak_strain``, ``cracks_tensile``, ``cracks_shear`` (also at the top
+  (same window); with ``fit: elastic`` both over the part of that window below the
+  crack-initiation stress (:func:`~geodem.measure.elastic_window`: where 0.5 % of the bonds
+  have broken); both fits are in ``window`` and ``elastic``; ``ucs``, ``peak_strain``, ``cracks_tensile``, ``cracks_shear`` (also at the top
   of summary.json); the curve goes to ``uniaxial_curve.csv`` and the picture to
   ``stress_strain.png``.
 """
@@ -166,7 +168,26 @@ class Uniaxial(PlatenTest):
     max_strain: float = F(0.01, gt=0, le=0.5, description="Stop at this axial strain")
     drop: float = F(0.7, gt=0, lt=1, description="Stop when the stress falls below drop x "
                                                  "peak after the peak")
+    fit_window: list[float] = F([0.1, 0.5], min_length=2, max_length=2,
+                                description="E and nu are fitted between these fractions of "
+                                            "the peak stress (pre-peak)")
+    fit: Literal["window", "elastic"] = F(
+        "window", description="'window': E and nu over the whole fit_window; 'elastic': "
+                              "over its part below the crack-initiation stress (the last "
+                              "stress before crack_fraction of the bonds has broken). Both "
+                              "are in the results ('window', 'elastic')")
+    crack_fraction: float = F(0.005, gt=0, lt=1,
+                              description="Fraction of the bonds broken that marks crack "
+                                          "initiation")
     plot: bool = F(True, description="Draw stress_strain.png (needs matplotlib)")
+
+    def check(self, cfg, groups):
+        out = super().check(cfg, groups)
+        lo, hi = self.fit_window
+        if not 0.0 <= lo < hi <= 1.0:
+            out.append((("fit_window",), f"[{lo:g}, {hi:g}]: allowed 0 <= lo < hi <= 1 "
+                                         "(fractions of the peak stress)"))
+        return out
 
     def execute(self, ctx):
         from geodem.core import groups
@@ -217,16 +238,25 @@ class Uniaxial(PlatenTest):
         keep = np.concatenate([[True], eps[1:] > run[:-1]])
         e_, s_, l_ = eps[keep], sig[keep], lat[keep]
         ucs, peak_strain = measure.peak(e_, s_)
-        E = nu = None
-        fit_error = None
+        fits, fit_error = {}, None
+        bonds = ctx.sim.bonded_count() + len(ctx.sim.crack_log())  # every bond the test had
         try:
-            E = measure.youngs_modulus(e_, s_)
-            nu = measure.poisson_ratio(e_, l_, stress=s_)
+            lo, hi, sigma_ci = measure.elastic_window(s_, a[keep, 7], bonds, self.fit_window,
+                                                      self.crack_fraction)
+            for name, window in (("window", tuple(self.fit_window)), ("elastic", (lo, hi))):
+                fits[name] = {"E": measure.youngs_modulus(e_, s_, window),
+                              "nu": measure.poisson_ratio(e_, l_, window, stress=s_),
+                              "fit_window": [float(w) for w in window]}
+            fits["elastic"]["crack_initiation_stress"] = sigma_ci
         except ValueError as exc:  # too few points before the peak: reported, not fatal
             fit_error = str(exc)
             ctx.log(f"E / nu not fitted: {exc}")
+        used = fits.get(self.fit, {})
+        E, nu = used.get("E"), used.get("nu")
+        window = used.get("fit_window", self.fit_window)
         ct, cs = int(a[-1, 5]), int(a[-1, 6])
-        res = {"E": E, "nu": nu, "ucs": ucs, "peak_strain": peak_strain,
+        res = {"E": E, "nu": nu, "fit": self.fit, "fit_window": window, **fits,
+               "bonds": int(bonds), "ucs": ucs, "peak_strain": peak_strain,
                "cracks_tensile": ct, "cracks_shear": cs, "final_strain": float(eps[-1]),
                "final_stress": float(sig[-1]), "stopped_by": reason, "samples": len(rows),
                "area": area, "height": float(h0), "strain_rate": self.strain_rate}
@@ -241,11 +271,11 @@ class Uniaxial(PlatenTest):
             log = ctx.sim.crack_log()
             pos = 0.5 * (st.x[log["i"]] + st.x[log["j"]]) if len(log) else np.zeros((0, dim))
             res["plot"] = ctx.plot("stress_strain.png", lambda p: _plot(
-                p, e_, s_, E, ucs, peak_strain, pos, log["type"], st.x, st.r))
+                p, e_, s_, E, ucs, peak_strain, pos, log["type"], st.x, st.r, window))
         return res
 
 
-def _plot(path, eps, sig, E, ucs, peak_strain, pos, types, x, r):
+def _plot(path, eps, sig, E, ucs, peak_strain, pos, types, x, r, window=(0.1, 0.5)):
     from geodem.workflow.animation import label_map, legend_outside
 
     try:
@@ -258,11 +288,12 @@ def _plot(path, eps, sig, E, ucs, peak_strain, pos, types, x, r):
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 5), gridspec_kw={"width_ratios": [3, 2]})
     a1.plot(eps, sig / 1e6, "C0-", lw=1.2, label="geodem")
     ip = int(np.argmax(sig))
-    win = np.flatnonzero((sig[:ip + 1] >= 0.1 * ucs) & (sig[:ip + 1] <= 0.5 * ucs))
+    lo, hi = window
+    win = np.flatnonzero((sig[:ip + 1] >= lo * ucs) & (sig[:ip + 1] <= hi * ucs))
     b = float(np.mean(sig[win] - E * eps[win])) if win.size else 0.0
     e_fit = np.linspace(max(0.0, -b / E), peak_strain, 10)
     a1.plot(e_fit, (E * e_fit + b) / 1e6, "k--", lw=0.8,
-            label=f"E = {E / 1e9:.3g} GPa (fit, 10-50 % of the peak)")
+            label=f"E = {E / 1e9:.3g} GPa (fit, {100 * lo:.0f}-{100 * hi:.0f} % of the peak)")
     a1.plot([peak_strain], [ucs / 1e6], "r*", ms=12, label=f"UCS = {ucs / 1e6:.3g} MPa")
     a1.set_ylim(min(0.0, sig.min() / 1e6), 1.15 * ucs / 1e6)
     a1.set_xlabel("axial strain [-]")

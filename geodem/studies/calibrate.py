@@ -218,6 +218,10 @@ class CalibrationSpec:
     # their mean: the material rather than one packing (docs/calibration.md, "How much one
     # packing decides"), at that many times the cost
     packings: int = 1
+    # how the UCS test fits E and nu (the uniaxial step's ``fit``): 'window' (10-50 % of the
+    # peak) or 'elastic' (its part below the crack-initiation stress; docs/calibration.md,
+    # "Elastic constants before the cracks")
+    fit: str = "window"
 
     def __post_init__(self):
         if self.dim not in (2, 3):
@@ -226,6 +230,8 @@ class CalibrationSpec:
             raise ValueError(f"packings = {self.packings!r}: allowed 1-10")
         if not 1 <= int(self.iterations) <= 20:
             raise ValueError(f"iterations = {self.iterations!r}: allowed 1-20")
+        if self.fit not in ("window", "elastic"):
+            raise ValueError(f"fit = {self.fit!r}: allowed 'window' or 'elastic'")
         if self.prefer not in ("Cu", "Tu"):
             raise ValueError(f"prefer = {self.prefer!r}: allowed 'Cu' or 'Tu'")
         if len(self.ucs_size) != self.dim:
@@ -249,6 +255,8 @@ def check_reachable(spec: CalibrationSpec) -> None:
     for ``spec.dim`` and its micro-structure (:func:`geodem.studies.reach.outside_region`)."""
     from geodem.studies.reach import outside_region
 
+    if spec.fit != "window":  # the charts' nu is the 10-50 % window's
+        return
     why = outside_region(spec.targets, spec.dim, spec.structure, spec.tolerances)
     if why:
         raise UnreachableTarget(f"{spec.name}: {why}. Try a bond-strength scatter or a bond "
@@ -535,7 +543,7 @@ def _specimen_workflow(spec, el, what, step):
 def _ucs_workflow(spec, el):
     return _specimen_workflow(spec, el, "uniaxial compression", {
         "kind": "uniaxial", "name": "ucs", "strain_rate": spec.strain_rate,
-        "max_strain": spec.max_strain, "drop": 0.7})
+        "max_strain": spec.max_strain, "drop": 0.7, "fit": spec.fit})
 
 
 def _tension_workflow(spec, el):
@@ -613,8 +621,10 @@ def measure(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
     if u.get("E") is None or u.get("nu") is None:
         raise RuntimeError(f"the UCS run in {folder / 'ucs'} gave no E / nu fit "
                            f"({u['results']['ucs'].get('fit_error')})")
+    r = u["results"]["ucs"]
     return {"E": float(u["E"]), "nu": float(u["nu"]), "Cu": float(u["ucs"]),
-            "Tu": float(d["tensile_strength"]), "wall_time_s": time.perf_counter() - t0}
+            "Tu": float(d["tensile_strength"]), "wall_time_s": time.perf_counter() - t0,
+            "fits": {k: r[k] for k in ("window", "elastic") if k in r}}
 
 
 def measure_friction(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
@@ -804,7 +814,7 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         "specimen": {"d_mean": spec.d_mean, "ucs_size": list(spec.ucs_size),
                      **spec.structure,
                      "disc_diameter": spec.disc_diameter, "distri_rate": spec.distri_rate,
-                     "seed": spec.seed, "packings": spec.packings,
+                     "seed": spec.seed, "packings": spec.packings, "fit": spec.fit,
                      "strain_rate": spec.strain_rate,
                      "max_strain": spec.max_strain, "tensile_test": "direct_tension",
                      "friction_test": ({"kind": "triaxial", "sigma3_over_Cu":

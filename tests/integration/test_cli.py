@@ -258,3 +258,11 @@ def test_two_balls_too_short_to_measure_warns_and_resumes(tmp_path):
                  "--resume", "--no-progress")
     assert res.exit_code == 0, res.output
     assert "already complete" in flat(res.output)
+
+
+@pytest.mark.parametrize("cmd", ["rock", "calibrate"])
+def test_an_unknown_fit_is_a_user_error(tmp_path, cmd):
+    res = CliRunner().invoke(app, [cmd, "sandstone", "-o", str(tmp_path / "o"), "--fit", "x"])
+    assert res.exit_code == 2
+    assert "--fit 'x': allowed: window or elastic" in res.output
+    assert not (tmp_path / "o").exists()

@@ -118,3 +118,41 @@ def test_a_signal_that_lands_on_a_sample_keeps_the_sample(ucs_run, tmp_path, mon
     for k in ("E", "nu", "ucs", "peak_strain"):
         assert a[k] == b[k], k
     assert (out / "uniaxial_curve.csv").read_text() == (full / "uniaxial_curve.csv").read_text()
+
+
+def test_ucs_reports_the_elastic_fit_below_the_crack_initiation_stress(ucs_run):
+    """Both fits are in the results: the 10-50 % window (the default, E and nu of the summary)
+    and the elastic one, which ends where 0.5 % of the bonds have broken; re-fitted here by
+    hand from uniaxial_curve.csv. The library sandstone cracks from about a quarter of its
+    peak, so the window's nu (0.183) carries crack dilation the elastic fit (0.161) does not."""
+    import csv
+
+    import numpy as np
+
+    from geodem import measure
+
+    _, out = ucs_run
+    s = json.loads((out / "summary.json").read_text())
+    r = s["results"]["ucs"]
+    assert r["fit"] == "window" and s["nu"] == r["window"]["nu"] and s["E"] == r["window"]["E"]
+    rows = list(csv.DictReader(open(out / "uniaxial_curve.csv")))
+    col = {k: np.array([float(x[k]) for x in rows]) for k in rows[0]}
+    sig, cracks = col["axial_stress"], col["cracks_total"]
+    ipk = int(np.argmax(sig))
+    el = r["elastic"]
+    lo, hi = el["fit_window"]
+    assert lo == 0.1 and 0.1 < hi < 0.5
+    # the crack-initiation stress: the last stress before 0.5 % of the bonds broke
+    first = int(np.flatnonzero(cracks[:ipk + 1] > 0.005 * r["bonds"])[0])
+    assert el["crack_initiation_stress"] == pytest.approx(sig[:first].max(), rel=1e-12)
+    assert hi == pytest.approx(el["crack_initiation_stress"] / sig[ipk], rel=1e-12)
+    assert el["nu"] == pytest.approx(measure.poisson_ratio(
+        col["axial_strain"], col["lateral_strain"], (lo, hi), stress=sig), rel=1e-9)
+    assert el["nu"] < r["window"]["nu"] - 0.01  # dilation of the cracks left out
+    assert el["E"] == pytest.approx(r["window"]["E"], rel=0.03)  # E hardly moves
+
+
+def test_a_bad_fit_window_names_the_field(tmp_path):
+    res = CliRunner().invoke(app, ["validate", str(UCS), "--set", "steps.0.fit_window=[0.5,0.2]"])
+    assert res.exit_code == 2
+    assert "fit_window" in res.output and "allowed 0 <= lo < hi <= 1" in res.output

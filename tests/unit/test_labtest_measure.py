@@ -7,6 +7,7 @@ import pytest
 from geodem.measure import (
     brazilian_tensile_strength,
     crack_start_offset,
+    elastic_window,
     mohr_coulomb_fit,
     peak,
     poisson_ratio,
@@ -51,6 +52,53 @@ def test_window_is_pre_peak_only():
     # post-peak softening passes through the same stress band: it must not enter the E fit
     eps, sig, _ = curve()
     assert youngs_modulus(eps, sig, window=(0.45, 0.95)) == pytest.approx(E, rel=1e-9)
+
+
+def damaged_curve():
+    """Elastic (E, NU) up to 0.3 of the peak, where bonds begin to break (10 of 1,000 by 0.4
+    of the peak, 200 at the peak); beyond 0.3 the lateral strain grows four times faster
+    (crack dilation), as in a bonded packing that cracks diffusely before its peak."""
+    eps, sig, _ = curve()
+    ci = 0.3 * UCS / E
+    lat = -NU * eps - np.where(eps > ci, 3.0 * NU * (eps - ci), 0.0)
+    cracks = np.where(eps > ci, np.floor(200 * (eps - ci) / (EPS_P - ci)), 0.0)
+    cracks[eps > EPS_P] = 200
+    return eps, sig, lat, cracks
+
+
+def test_elastic_window_stops_where_the_bonds_begin_to_break():
+    eps, sig, lat, cracks = damaged_curve()
+    # 0.5 % of 1,000 bonds = 5 cracks: reached at eps - ci = 5/200 (EPS_P - ci)
+    lo, hi, sci = elastic_window(sig, cracks, 1000)
+    eps_5 = 0.3 * EPS_P + 6 / 200 * 0.7 * EPS_P  # the first point with 6 > 5 cracks
+    assert lo == 0.1
+    assert sci == pytest.approx(E * (eps_5 - 4e-6), rel=1e-3)  # the point before it
+    assert hi == pytest.approx(sci / UCS, rel=1e-12)
+    # the few points between the first crack (0.3) and the threshold (0.321) dilate a little
+    assert poisson_ratio(eps, lat, (lo, hi), stress=sig) == pytest.approx(NU, abs=0.02)
+    assert poisson_ratio(eps, lat, (0.1, 0.3), stress=sig) == pytest.approx(NU, abs=1e-9)
+    # the fixed 10-50 % window measures the dilation: the least-squares slope of
+    # max(0, x - 0.3) over x uniform in 0.1-0.5 is 1/2, so nu = NU (1 + 3/2) = 0.525
+    nu_fixed = poisson_ratio(eps, lat, (0.1, 0.5), stress=sig)
+    assert nu_fixed == pytest.approx(2.5 * NU, rel=0.01)
+
+
+def test_elastic_window_without_damage_or_threshold_keeps_the_window():
+    eps, sig, _, cracks = damaged_curve()
+    assert elastic_window(sig, np.zeros_like(sig), 1000) == (0.1, 0.5, None)
+    assert elastic_window(sig, cracks, 1000, crack_fraction=None) == (0.1, 0.5, None)
+    assert elastic_window(sig, cracks, 1e6)[1:] == (0.5, None)  # 0.5 % of 1e6: never reached
+
+
+def test_elastic_window_keeps_three_points_and_refuses_bad_input():
+    sig = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 10.0])
+    cracks = np.array([0, 50, 60, 70, 80, 90.0])  # the threshold is passed at the 2nd point
+    lo, hi, sci = elastic_window(sig, cracks, 1000, window=(0.05, 0.5))
+    assert sci == 0.0 and hi == pytest.approx(0.3)  # the 3rd point from lo: 3 / 10
+    with pytest.raises(ValueError, match="differ in length"):
+        elastic_window(sig, cracks[:3], 1000)
+    with pytest.raises(ValueError, match="allowed bonds > 0"):
+        elastic_window(sig, cracks, 0)
 
 
 def test_brazilian():

@@ -52,6 +52,21 @@ def test_calibrate_refuses_before_writing_anything(tmp_path, monkeypatch):
     assert not (tmp_path / "out").exists()
 
 
+def test_an_elastic_fit_is_not_judged_by_the_window_chart(monkeypatch):
+    """The charts' nu is the 10-50 % window's; a calibration on the elastic fit measures
+    another nu (lower by the cracks' dilation), so the chart does not refuse it."""
+    import geodem.studies.reach as reach
+    from geodem.studies.calibrate import check_reachable
+
+    monkeypatch.setattr(reach, "shipped_chart", lambda dim: CHART)
+    odd = dict(ROCK, Cu=30 * ROCK["Tu"])
+    with pytest.raises(UnreachableTarget):
+        check_reachable(CalibrationSpec(targets=odd, name="odd"))
+    check_reachable(CalibrationSpec(targets=odd, name="odd", fit="elastic"))  # not judged
+    with pytest.raises(ValueError, match="fit = 'tangent': allowed 'window' or 'elastic'"):
+        CalibrationSpec(targets=odd, fit="tangent")
+
+
 @pytest.mark.parametrize("dim", [2, 3])
 def test_the_shipped_charts_hold_every_library_rock(dim):
     from geodem.materials_library import list_materials, load_material
