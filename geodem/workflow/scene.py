@@ -1,21 +1,23 @@
 """Model ``scene``: a user's own bonded model composed from parts in YAML.
 
-A scene is a **domain** (a box, or a polygon in 2-D) filled with a close-packed lattice of one
-element diameter (triangular in 2-D, FCC in 3-D; the lattice starts half an element inside the
-lower corner, every element lies within the bounding box, and in a polygon element centres lie
-inside it), whose elements take their material from
+A scene is a **domain** (a box, a polygon in 2-D, or the ground under a terrain) filled with
+a close-packed lattice of one element diameter (``fill: lattice``: triangular in 2-D, FCC in
+3-D; the lattice starts half an element inside the lower corner, every element lies within the
+bounding box, and in a polygon element centres lie inside it), a random packing deposited under
+gravity (``random``) or the material's own specimen packing, cemented (``specimen``: a library
+rock is then the calibrated rock; one material). Its elements take their material from
 ordered **regions** (shapes or half-spaces; a later region overrides an earlier one; elements in
-no region take the scene's ``material``). Bonds across two regions are kept (each bond as
-strong as the weaker element, as everywhere in geodem) or, with ``interfaces: joint``, cut: the
-regions then touch without cement, like the two sides of a joint. Named **groups** select
-elements by side of the domain, by region or by box, for any step (fix, velocity, load, ...).
+no region take the scene's ``material``); a region with ``empty: true`` removes its elements (a
+hole). Bonds across two regions are kept (each bond as strong as the weaker element, as
+everywhere in geodem) or, with ``interfaces: joint``, cut: the regions then touch without
+cement, like the two sides of a joint. Named **groups** select elements by sides of the domain,
+by region, by box or by any shape, for any step (fix, velocity, load, heat, ...).
 
 Regions are shapes of one material each, or the coloured regions of a **label image**
 (colour -> region and material, with a pixel size and an origin; pixels of an ``empty`` colour
 hold no element: a cavity drawn on the image).
 
-Not built yet: random packings (``fill`` takes ``lattice`` only), terrain domains (the
-``landslide`` model does those for its case), an interface material.
+Not built yet: an interface material, several materials in one specimen fill.
 """
 from __future__ import annotations
 
@@ -239,8 +241,9 @@ class SceneGroup(Strict):
 
 @register_model("scene")
 class Scene(ModelBase):
-    """A close-packed lattice filling a domain, materials by ordered regions, joints between
-    regions on request and named groups (module docstring)."""
+    """A domain filled with a lattice, a random packing or the material's specimen packing,
+    materials (or holes) by ordered regions, joints between regions on request and named
+    groups (module docstring)."""
 
     size_field = "d"
     example = {"type": "scene", "dim": 2, "d": 0.02,
