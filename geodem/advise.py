@@ -125,7 +125,7 @@ def _dt_suggestion(prep) -> dict:
 
 #: speed_accuracy cases and what in a workflow they stand for (model types, step kinds)
 CASE_OF = (("two_balls", {"two_balls"}), ("ucs", {"uniaxial", "specimen"}),
-           ("thermal_rod", {"heat", "thermal_bar", "borehole_plate"}),
+           ("thermal_rod", {"heat", "thermal_bar"}),
            ("consolidation", {"flow", "darcy", "consolidation", "hydrofrac_plate"}),
            ("column_collapse", {"granular_column", "collapse"}),
            ("wave_speed", {"valley_section", "seismic_wave"}),

@@ -52,7 +52,8 @@ from geodem.core.state import BONDED, State
 from geodem.materials import Micro, at_size, macro_to_micro
 
 __all__ = ["cement", "make_specimen", "isotropic_specimen", "specimen_params", "DEFAULT_MATERIAL",
-           "coordination", "specimen_shape", "packing_recipe", "bond_strength_factors"]
+           "coordination", "specimen_shape", "packing_recipe", "bond_strength_factors",
+           "well_bonded", "settle"]
 
 DEFAULT_MATERIAL = {"E": 10e9, "nu": 0.15, "Tu": 5e6, "Cu": 50e6, "mu_i": 0.8, "rho": 2500.0}
 _ELEMENT_KEYS = ("kn", "ks", "xb", "fs0", "mu")
@@ -345,3 +346,36 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
                             "compaction_pressure": com["pressure"],
                             "n_deposited": int(s.size)}})
     return sp, rep
+
+
+def well_bonded(state: State, keep=None, min_bonds: int = 2) -> np.ndarray:
+    """The elements of ``keep`` (bool (N,), default every element) left when those with fewer
+    than ``min_bonds`` intact bonds to other kept elements are dropped, repeatedly (a drop can
+    leave a neighbour short): a bool (N,) mask. Cutting a bonded packing leaves a few loose or
+    dangling elements at the cut."""
+    keep = np.ones(state.n, bool) if keep is None else np.array(keep, bool)
+    bonded = (state.cstate == BONDED) & (state.nbr >= 0)
+    while keep.any():
+        count = (bonded & keep[np.maximum(state.nbr, 0)]).sum(axis=1)
+        short = keep & (count < min_bonds)
+        if not short.any():
+            break
+        keep &= ~short
+    return keep
+
+
+def settle(state: State, n_across: float | None = None, tol: float = 1e-3,
+           rounds: int = 10) -> State:
+    """Standard balances (:meth:`Simulation.balance`) until the unbalanced-force ratio is below
+    ``tol``, ``rounds`` at most: a bonded model after a cut. ``n_across`` defaults to the largest
+    extent over the mean diameter. Returns the synced state."""
+    from geodem.core.engine import Simulation
+
+    if n_across is None:
+        ext = state.x.max(axis=0) - state.x.min(axis=0)
+        n_across = max(float(ext.max()) / (2.0 * float(state.r.mean())), 1.0)
+    sim = Simulation(state, monitor_every=0)
+    for _ in range(rounds):
+        if sim.balance(n_across) < tol:
+            break
+    return sim.sync()

@@ -120,25 +120,14 @@ def prune_loose(state, min_bonds: int = 2, n_across: float | None = None, tol: f
     while cementing); under a flat platen such an element is pushed into the disc at a small,
     friction-limited load and the contact never seats. Returns ``(state, removed)``."""
     from geodem.build.shapes import subset_state
-    from geodem.core.engine import Simulation
-    from geodem.core.state import BONDED
+    from geodem.build.specimen import settle, well_bonded
 
-    removed = 0
-    while state.n:
-        short = (state.cstate == BONDED).sum(axis=1) < min_bonds
-        if not short.any():
-            break
-        removed += int(short.sum())
-        state = subset_state(state, ~short)
+    keep = well_bonded(state, min_bonds=min_bonds)
+    removed = int(state.n - keep.sum())
+    if removed:
+        state = subset_state(state, keep)
     if removed and state.n:
-        if n_across is None:
-            ext = state.x.max(axis=0) - state.x.min(axis=0)
-            n_across = max(float(ext.max()) / (2.0 * float(state.r.mean())), 1.0)
-        sim = Simulation(state, monitor_every=0)
-        for _ in range(10):
-            if sim.balance(n_across) < tol:
-                break
-        state = sim.sync()
+        state = settle(state, n_across, tol)
     return state, removed
 
 

@@ -1,4 +1,4 @@
-"""Thermal workflow pieces: the ``heat`` step, the rod check and the ``borehole_plate`` model.
+"""Thermal workflow pieces: the ``heat`` step and the rod check.
 
 * step ``heat``: couples the thermal field (:class:`geodem.fields.thermal.ThermalField`, equations
   in its module docstring and docs/thermal.md) to the model, or, when an earlier ``heat`` step
@@ -25,11 +25,8 @@
   ``fourier_number = D t / L^2``); profile in ``thermal_rod_profile.csv`` and
   ``thermal_rod.png``.
 
-* model ``borehole_plate`` (2-D): a bonded random plate (``make_specimen`` box, calibrated or
-  converted material) with a circular hole at its centre; groups ``heater`` (the elements within
-  ``heater_depth`` d_mean of the hole wall), ``edge`` (within ``edge_depth`` d_mean of the outer
-  faces) and ``specimen`` (the rest). Loose elements (fewer than 2 bonds) are removed and the
-  plate is balanced after the hole is cut.
+The heated borehole (workflows/thermal_cracking.yaml) is a composition: model ``scene`` (the
+rock's own specimen packing, an empty hole, groups by shape) + steps ``damping`` and ``heat``.
 """
 from __future__ import annotations
 
@@ -42,15 +39,12 @@ from pydantic import Field, model_validator
 
 from geodem.cases.common import append_csv, write_csv
 from geodem.workflow.animation import pyplot
-from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
     DOF_NAMES,
     F,
     Int,
-    ModelBase,
     Name,
     StepBase,
-    register_model,
     register_step,
     unknown_group,
 )
@@ -461,90 +455,3 @@ def _plot_rod(path, s, T, xs, exact, curves, t, rel, fo):
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
-
-
-# ============================================================================ borehole plate
-@register_model("borehole_plate")
-class BoreholePlate(ModelBase):
-    """A 2-D bonded random plate with a circular hole at its centre (packed, cut and cemented
-    by make_specimen; the hole cut out, loose elements removed, balanced), groups heater (ring
-    at the hole wall), edge (outer faces) and specimen (the rest)."""
-
-    size_field = "size"
-    example = {"type": "borehole_plate", "size": [0.05, 0.05], "hole_radius": 0.006,
-               "d_mean": 0.005, "material": "rock"}
-    dim: Literal[2] = F(2, description="Dimension (2-D only)")
-    size: list[float] = F([0.1, 0.1], unit="m", min_length=2, max_length=2,
-                          description="Plate edge lengths")
-    hole_radius: float = F(0.01, unit="m", gt=0, description="Radius of the central hole")
-    d_mean: float = F(0.004, unit="m", gt=0, description="Mean element diameter")
-    distri_rate: float = F(0.2, ge=0, lt=1, description="Size spread of the packing "
-                                                        "(make_specimen distri_rate)")
-    seed: Optional[int] = F(None, description="Packing seed (default: metadata.seed)")
-    material: Name = F(..., description="Material name (rock properties, per-size or direct "
-                                        "element parameters, or a library material)")
-    heater_depth: float = F(1.0, gt=0, le=10,
-                            description="Heater ring width from the hole wall, in d_mean")
-    edge_depth: float = F(1.0, gt=0, le=10,
-                          description="Edge layer depth from the outer faces, in d_mean")
-
-    def n_elements(self):
-        area = float(np.prod(self.size)) - math.pi * self.hole_radius ** 2
-        return max(1, int(0.84 * max(area, 0.0) / (math.pi / 4 * self.d_mean ** 2)))
-
-    def bytes_per_element(self):
-        return state_bytes_per_element(2, 8) + 3000
-
-    def material_refs(self):
-        return [(("material",), self.material)]
-
-    def group_names(self):
-        return ["all", "specimen", "heater", "edge"]
-
-    def n_across(self):
-        return float(max(self.size) / self.d_mean) if self.size else 1.0
-
-    def check(self, cfg):
-        from geodem.workflow.material import box_size_problems, material_problems
-
-        out = box_size_problems(self.size, 2, self.d_mean)
-        if not out:
-            free = 0.5 * min(self.size) - self.hole_radius
-            if free < 3 * self.d_mean:
-                out.append((("hole_radius",), (f"the hole leaves {free:g} m of rock to the "
-                                               f"nearest face; allowed: at least 3 d_mean = "
-                                               f"{3 * self.d_mean:g} m")))
-        if self.hole_radius < self.d_mean:
-            out.append((("hole_radius",), (f"the hole must be at least one d_mean = "
-                                           f"{self.d_mean:g} m in radius")))
-        return out + material_problems(cfg, self.material, 2, self.d_mean)
-
-    def build(self, cfg):
-        from geodem.core import groups as grp
-        from geodem.core.engine import Simulation
-        from geodem.cases.brazilian import plate_with_hole
-
-        seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
-        n_across = self.n_across()
-        st, removed, sm, rep, c = plate_with_hole(cfg, self.material, self.size, self.d_mean,
-                                                  self.distri_rate, seed, self.hole_radius,
-                                                  n_across)
-        if st.n < 10:
-            raise BuildError(("size",), f"only {st.n} elements left: make the plate larger or "
-                                        f"d_mean smaller")
-        if not removed:  # cutting released the hole's bonds: settle once
-            Simulation(st, monitor_every=0).balance(n_across)
-        st.v[:] = 0.0
-        lo, hi = st.x.min(axis=0), st.x.max(axis=0)
-        edge = np.any((st.x <= lo + self.edge_depth * self.d_mean)
-                      | (st.x >= hi - self.edge_depth * self.d_mean), axis=1)
-        heater = np.linalg.norm(st.x - c, axis=1) <= self.hole_radius + \
-            self.heater_depth * self.d_mean
-        grp.add_group(st, "edge", edge & ~heater)
-        grp.add_group(st, "heater", heater)
-        st.step, st.time = 0, 0.0
-        info = {"diameter": self.d_mean, "size": list(self.size), "centre": c.tolist(),
-                "hole_radius": self.hole_radius, "material": sm.label,
-                "material_warnings": list(sm.warnings), "loose_removed": removed,
-                "specimen_report": {k: v for k, v in rep.items() if k != "packing"}}
-        return BuiltModel(st, st.x.copy(), n_across, info)

@@ -151,9 +151,10 @@ def group_problems(groups: dict, dim: int) -> list:
         if name == "all":
             out.append((("groups", name), "'all' always means every element; choose "
                                            "another name"))
-        if g.side is not None and DOF_NAMES.index(g.side[0]) >= dim:
-            out.append((("groups", name, "side"), f"side {g.side!r} does not exist in "
-                                                  f"{dim}-D"))
+        for side in [g.side] if isinstance(g.side, str) else (g.side or []):
+            if DOF_NAMES.index(side[0]) >= dim:
+                out.append((("groups", name, "side"), f"side {side!r} does not exist in "
+                                                      f"{dim}-D"))
         if g.box is not None:
             for key in ("min", "max"):
                 if len(getattr(g.box, key)) != dim:

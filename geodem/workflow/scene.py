@@ -1,21 +1,23 @@
 """Model ``scene``: a user's own bonded model composed from parts in YAML.
 
-A scene is a **domain** (a box, or a polygon in 2-D) filled with a close-packed lattice of one
-element diameter (triangular in 2-D, FCC in 3-D; the lattice starts half an element inside the
-lower corner, every element lies within the bounding box, and in a polygon element centres lie
-inside it), whose elements take their material from
+A scene is a **domain** (a box, a polygon in 2-D, or the ground under a terrain) filled with
+a close-packed lattice of one element diameter (``fill: lattice``: triangular in 2-D, FCC in
+3-D; the lattice starts half an element inside the lower corner, every element lies within the
+bounding box, and in a polygon element centres lie inside it), a random packing deposited under
+gravity (``random``) or the material's own specimen packing, cemented (``specimen``: a library
+rock is then the calibrated rock; one material). Its elements take their material from
 ordered **regions** (shapes or half-spaces; a later region overrides an earlier one; elements in
-no region take the scene's ``material``). Bonds across two regions are kept (each bond as
-strong as the weaker element, as everywhere in geodem) or, with ``interfaces: joint``, cut: the
-regions then touch without cement, like the two sides of a joint. Named **groups** select
-elements by side of the domain, by region or by box, for any step (fix, velocity, load, ...).
+no region take the scene's ``material``); a region with ``empty: true`` removes its elements (a
+hole). Bonds across two regions are kept (each bond as strong as the weaker element, as
+everywhere in geodem) or, with ``interfaces: joint``, cut: the regions then touch without
+cement, like the two sides of a joint. Named **groups** select elements by sides of the domain,
+by region, by box or by any shape, for any step (fix, velocity, load, heat, ...).
 
 Regions are shapes of one material each, or the coloured regions of a **label image**
 (colour -> region and material, with a pixel size and an origin; pixels of an ``empty`` colour
 hold no element: a cavity drawn on the image).
 
-Not built yet: random packings (``fill`` takes ``lattice`` only), terrain domains (the
-``landslide`` model does those for its case), an interface material.
+Not built yet: an interface material, several materials in one specimen fill.
 """
 from __future__ import annotations
 
@@ -182,6 +184,8 @@ class Region(Strict):
 
     name: Optional[Name] = F(None, description="Region name (for groups: {region: NAME})")
     material: Optional[Name] = F(None, description="Material of the elements in the shape")
+    empty: bool = F(False, description="The shape holds no element (a hole, a cavity): its "
+                                       "elements are removed (instead of a material)")
     shape: Optional[Shape] = F(None, description="Where the region is")
     image: Optional[ImageRegions] = F(None, description="Regions from a label image (instead "
                                                         "of name, material and shape)")
@@ -190,40 +194,56 @@ class Region(Strict):
     def _one(self):
         if (self.shape is None) == (self.image is None):
             raise ValueError("give exactly one of shape (with material) or image")
-        if self.shape is not None and self.material is None:
-            raise ValueError("a shape region needs a material")
+        if self.shape is not None and (self.material is None) != self.empty:
+            raise ValueError("a shape region needs a material, or empty: true (a hole), "
+                             "not both")
+        if self.image is not None and self.empty:
+            raise ValueError("an image region removes elements by its empty colours "
+                             "(image.empty), not by empty: true")
         if self.image is not None and (self.material is not None or self.name is not None):
             raise ValueError("an image region takes its names and materials from image.colours")
         return self
 
     def slots(self) -> list:
-        """``(name, material)`` of each region this entry makes."""
+        """``(name, material)`` of each region this entry makes (material None: empty)."""
         if self.image is None:
             return [(self.name, self.material)]
         return [(name, c.material) for name, c in self.image.colours.items()]
 
 
 class SceneGroup(Strict):
-    """Elements of a group: a slab at one side of the domain, a named region or a box. An
-    element belongs to one group; the last group that selects it wins."""
+    """Elements of a group: a slab at one or more sides of the domain, a named region, a box
+    or any shape. An element belongs to one group; the last group that selects it wins."""
 
-    side: Optional[Literal[SIDES]] = F(  # type: ignore[valid-type]
-        None, description="Side of the domain's bounding box (xmin, ..., zmax)")
+    side: Optional[Union[Literal[SIDES], list[Literal[SIDES]]]] = F(  # type: ignore[valid-type]
+        None, description="Side of the domain's bounding box (xmin, ..., zmax), or a list of "
+                          "sides (their slabs together: e.g. the outer faces)")
     depth: float = F(0.5, gt=0, description="Slab depth from the side, in element diameters")
     region: Optional[Name] = F(None, description="A region's name")
     box: Optional[SceneBox] = F(None, description="Box selecting element centres [m]")
+    shape: Optional[Shape] = F(None, description="A shape selecting element centres (box, "
+                                                 "polygon, disc, below, above, band)")
 
     @model_validator(mode="after")
     def _one(self):
-        if sum(v is not None for v in (self.side, self.region, self.box)) != 1:
-            raise ValueError("give exactly one of side, region or box")
+        if sum(v is not None for v in (self.side, self.region, self.box, self.shape)) != 1:
+            raise ValueError("give exactly one of side, region, box or shape")
+        if isinstance(self.side, list) and not self.side:
+            raise ValueError("side: give a side or a non-empty list of sides")
         return self
+
+    def sides(self) -> list:
+        """The sides of a side group (one or several), else []."""
+        if self.side is None:
+            return []
+        return [self.side] if isinstance(self.side, str) else list(self.side)
 
 
 @register_model("scene")
 class Scene(ModelBase):
-    """A close-packed lattice filling a domain, materials by ordered regions, joints between
-    regions on request and named groups (module docstring)."""
+    """A domain filled with a lattice, a random packing or the material's specimen packing,
+    materials (or holes) by ordered regions, joints between regions on request and named
+    groups (module docstring)."""
 
     size_field = "d"
     example = {"type": "scene", "dim": 2, "d": 0.02,
@@ -233,14 +253,18 @@ class Scene(ModelBase):
                "interfaces": "joint",
                "groups": {"base": {"side": "ymin"}, "soft": {"region": "soft"}}}
     dim: Literal[2, 3] = F(2, description="Dimension")
-    d: float = F(..., unit="m", gt=0, description="Element diameter (lattice spacing)")
+    d: float = F(..., unit="m", gt=0, description="Element diameter (lattice spacing; random "
+                                                  "and specimen fills: the mean diameter)")
     domain: Shape = F(..., description="The domain: a box, or a polygon in 2-D")
-    fill: Literal["lattice", "random"] = F(
-        "lattice", description="Fill: 'lattice' (close-packed, diameter d) or 'random' (a "
+    fill: Literal["lattice", "random", "specimen"] = F(
+        "lattice", description="Fill: 'lattice' (close-packed, diameter d), 'random' (a "
                                "packing deposited under gravity, diameters d (1 +- "
-                               "distri_rate), cut by the domain)")
-    distri_rate: float = F(0.2, ge=0, lt=1, description="Random fill: radius spread (d_max / "
-                                                        "d_min = (1 + r) / (1 - r))")
+                               "distri_rate), cut by the domain) or 'specimen' (the "
+                               "material's own specimen packing, cemented, cut by the domain: "
+                               "a library rock is then the calibrated rock; one material)")
+    distri_rate: float = F(0.2, ge=0, lt=1, description="Random and specimen fills: radius "
+                                                        "spread (d_max / d_min = (1 + r) / "
+                                                        "(1 - r))")
     material: Name = F(..., description="Material of elements in no region")
     regions: list[Region] = F([], description="Ordered regions; a later one overrides")
     interfaces: Literal["bonded", "joint"] = F(
@@ -303,7 +327,8 @@ class Scene(ModelBase):
         out = [(("material",), self.material)]
         for k, r in enumerate(self.regions):
             if r.image is None:
-                out.append((("regions", k, "material"), r.material))
+                if not r.empty:
+                    out.append((("regions", k, "material"), r.material))
             else:
                 out += [(("regions", k, "image", "colours", n, "material"), c.material)
                         for n, c in r.image.colours.items()]
@@ -356,11 +381,40 @@ class Scene(ModelBase):
                 if n is not None and names.count(n) > 1:
                     out.append((("regions", k, "name" if r.image is None else "image"),
                                 f"region name {n!r} is used twice"))
+        empty = [n for n, m, _ in self.slots() if n is not None and m is None]
         for name, g in self.groups.items():
             if g.region is not None and g.region not in names:
                 out.append((("groups", name, "region"), f"no region named {g.region!r}; "
                                                         f"allowed: {', '.join(names) or 'none'}"))
+            elif g.region in empty:
+                full = ", ".join(n for n in names if n not in empty) or "none"
+                out.append((("groups", name, "region"), f"region {g.region!r} is empty (it "
+                                                        f"holds no element); allowed: {full}"))
+            if g.shape is not None and g.shape.terrain is not None:
+                out.append((("groups", name, "shape", "terrain"), "a terrain is a domain, not "
+                                                                  "a group's shape"))
+            elif g.shape is not None:
+                out += g.shape.problems(self.dim, ("groups", name, "shape"))
+        if self.fill == "specimen":
+            out += self._specimen_problems(cfg)
         return out + group_problems(self.groups, self.dim)
+
+    def _specimen_problems(self, cfg):
+        """A specimen fill packs and cements one material in a box or polygon domain."""
+        from geodem.workflow.material import material_problems
+
+        if self.domain.terrain is not None:
+            return [(("fill",), "a specimen fill packs a box or a polygon domain; allowed for a "
+                                "terrain: lattice, random")]
+        out = []
+        for name, mat, path in self.slots():
+            if mat is not None and mat != self.material:
+                out.append((path, f"a specimen fill cements one material, the scene's "
+                                  f"{self.material!r} (its packing recipe and bonds); this "
+                                  f"region names {mat!r}: allowed: {self.material!r} or "
+                                  f"empty: true, or fill: lattice or random for several "
+                                  f"materials"))
+        return out + material_problems(cfg, self.material, self.dim, self.d)
 
     def _terrain_problems(self):
         from geodem.geo.errors import GeometryError
@@ -400,34 +454,60 @@ class Scene(ModelBase):
         return []
 
     def build(self, cfg):
-        from geodem.build.lattice import bonded_state, fcc_lattice, triangular_lattice
+        from geodem.build.lattice import fcc_lattice, triangular_lattice
         from geodem.core.neighbors import spatial_sort
 
         d = self.d
         lo, hi = self._bounds()
         radius = 0.5 * d
-        if self.fill == "random":
-            x, radius = self._random_fill(cfg, lo, hi)
-        elif self.domain.terrain is not None:
-            x = np.array(self._terrain().x, float)  # local: (along the line, z) or (x, y, z)
+        info = {"d": d, "diameter": d}
+        if self.fill == "specimen":
+            st, region, more = self._specimen_fill(cfg, lo, hi)
+            info.update(more)
         else:
-            c = self._counts()
-            x = fcc_lattice(*c, d) if self.dim == 3 else triangular_lattice(*c, d)
-            x = x + lo + 0.5 * d
-            tol = 1e-9 * d
-            # whole elements inside the bounding box; in a polygon, centres inside
-            x = x[self.domain.mask(x) & np.all(x <= hi - 0.5 * d + tol, axis=1)]
-        if len(x) == 0:
-            raise BuildError(("domain",), "the domain holds no element")
-        region = self.region_ids(x)
-        x, region = x[region >= 0], region[region >= 0]  # empty pixels: no element
-        if len(x) == 0:
-            raise BuildError(("regions",), "every element lies on an empty pixel")
+            if self.fill == "random":
+                x, radius = self._random_fill(cfg, lo, hi)
+            elif self.domain.terrain is not None:
+                x = np.array(self._terrain().x, float)  # local: (along the line, z) or (x, y, z)
+            else:
+                c = self._counts()
+                x = fcc_lattice(*c, d) if self.dim == 3 else triangular_lattice(*c, d)
+                x = x + lo + 0.5 * d
+                tol = 1e-9 * d
+                # whole elements inside the bounding box; in a polygon, centres inside
+                x = x[self.domain.mask(x) & np.all(x <= hi - 0.5 * d + tol, axis=1)]
+            if len(x) == 0:
+                raise BuildError(("domain",), "the domain holds no element")
+            region = self.region_ids(x)
+            info["elements_removed"] = int((region < 0).sum())
+            x, region = x[region >= 0], region[region >= 0]  # empty regions: no element
+            if len(x) == 0:
+                raise BuildError(("regions",), "every element lies in an empty region")
+            st = self._bond(cfg, x, radius, region)
+        slots = self.slots()
+        if self.gravity is not None:
+            st.gravity[:self.dim] = self.gravity
+        info["joint_bonds_cut"] = cut_interfaces(st, region) if self.interfaces == "joint" else 0
+        self._add_groups(st, region)
+        if self.sort:
+            spatial_sort(st)
+        labels = ["default"] + [n or f"region {k}" for k, (n, _, _) in enumerate(slots)]
+        info["elements_by_region"] = {labels[k]: int((region == k).sum())
+                                      for k in range(len(labels))
+                                      if k == 0 or slots[k - 1][1] is not None}
+        return BuiltModel(st, st.x.copy(), self.n_across(), info)
+
+    def _bond(self, cfg, x, radius, region):
+        """The bonded state of element centres ``x`` (radius ``radius``), each with its region's
+        element parameters (:func:`~geodem.build.lattice.bonded_state`)."""
+        from geodem.build.lattice import bonded_state
+
+        d = self.d
         slots = self.slots()
         mats = [self.material] + [m for _, m, _ in slots]
         paths = [("material",)] + [p for _, _, p in slots]
         params = {k: element_params(cfg, name, d, self.dim, paths[k])
-                  for k, name in enumerate(mats)}
+                  for k, name in enumerate(mats) if name is not None}
         per = {key: np.array([params[int(k)][key] for k in region], float)
                for key in ("kn", "ks", "xb", "fs0", "mu", "rho")}
         st = bonded_state(x, radius, density=per["rho"], kn=per["kn"], ks=per["ks"],
@@ -435,17 +515,45 @@ class Scene(ModelBase):
         for k in params:
             if params[k]["mass"] is not None:
                 st.m[region == k] = params[k]["mass"]
-        if self.gravity is not None:
-            st.gravity[:self.dim] = self.gravity
-        cut = cut_interfaces(st, region) if self.interfaces == "joint" else 0
-        self._add_groups(st, region)
-        if self.sort:
-            spatial_sort(st)
-        labels = ["default"] + [n or f"region {k}" for k, (n, _, _) in enumerate(slots)]
-        counts = {labels[k]: int((region == k).sum()) for k in range(len(mats))}
-        return BuiltModel(st, st.x.copy(), self.n_across(),
-                          {"d": d, "diameter": d, "elements_by_region": counts,
-                           "joint_bonds_cut": cut})
+        return st
+
+    def _specimen_fill(self, cfg, lo, hi):
+        """The material's own specimen (:func:`~geodem.build.specimen.make_specimen` box over
+        the domain's bounding box: its packing recipe, cemented with its element parameters),
+        cut by the domain and the empty regions; elements left with fewer than 2 bonds are
+        removed and the model is balanced after a cut. Returns ``(state, region, info)``."""
+        from geodem.build.shapes import subset_state
+        from geodem.build.specimen import make_specimen, settle, well_bonded
+        from geodem.workflow.material import specimen_material
+
+        try:
+            sm = specimen_material(cfg, self.material, self.dim, self.d)
+        except ValueError as exc:
+            raise BuildError(("material",), str(exc)) from None
+        seed = int(cfg.metadata.seed or 0)
+        try:
+            st, rep = make_specimen("box", list(hi - lo), self.d, self.distri_rate,
+                                    sm.material, self.dim, seed, element=sm.element)
+        except ValueError as exc:
+            raise BuildError(("domain",), str(exc)) from None
+        st.x += lo
+        st.x_ref += lo
+        st.groups, st.group[:] = {"all": 0}, 0
+        region = self.region_ids(st.x)
+        keep = self.domain.mask(st.x) & (region >= 0)
+        kept = well_bonded(st, keep, 2)
+        info = {"material": sm.label, "material_warnings": list(sm.warnings),
+                "elements_removed": int(st.n - keep.sum()),
+                "loose_removed": int(keep.sum() - kept.sum()),
+                "specimen_report": {k: v for k, v in rep.items() if k != "packing"}}
+        if not kept.all():
+            st, region = subset_state(st, kept), region[kept]
+            if st.n == 0:
+                raise BuildError(("regions",), "no bonded element is left after the cut")
+            st = settle(st, self.n_across())
+        st.v[:] = 0.0
+        st.step, st.time = 0, 0.0
+        return st, region, info
 
     def _random_fill(self, cfg, lo, hi):
         """A random packing of the domain's bounding box (random placement, then deposition
@@ -476,15 +584,15 @@ class Scene(ModelBase):
 
     def region_ids(self, x) -> np.ndarray:
         """Region index per element (the last region wins): 0 for none, k + 1 for
-        ``slots()[k]``, -1 for an element on an image's empty pixel (it is removed). Elements
-        outside an image keep what earlier regions gave them."""
+        ``slots()[k]``, -1 for an element in an empty region or on an image's empty pixel (it
+        is removed). Elements outside an image keep what earlier regions gave them."""
         from geodem.geo.image import EMPTY, pixel_labels
 
         region = np.zeros(len(x), np.int64)
         first = 1
         for r in self.regions:
             if r.image is None:
-                region[r.shape.mask(x)] = first
+                region[r.shape.mask(x)] = -1 if r.empty else first
                 first += 1
                 continue
             im = r.image.read()
@@ -503,13 +611,17 @@ class Scene(ModelBase):
         names = {n: k + 1 for k, (n, _, _) in enumerate(self.slots()) if n is not None}
         for name, g in self.groups.items():
             if g.side is not None:
-                ax = DOF_NAMES.index(g.side[0])
-                depth = g.depth * self.d
-                sel = (st.x[:, ax] <= lo[ax] + depth - 1e-9 * self.d
-                       if g.side.endswith("min") else
-                       st.x[:, ax] >= hi[ax] - depth + 1e-9 * self.d)
+                sel = np.zeros(st.n, bool)
+                for side in g.sides():
+                    ax = DOF_NAMES.index(side[0])
+                    depth = g.depth * self.d
+                    sel |= (st.x[:, ax] <= lo[ax] + depth - 1e-9 * self.d
+                            if side.endswith("min") else
+                            st.x[:, ax] >= hi[ax] - depth + 1e-9 * self.d)
             elif g.region is not None:
                 sel = region == names[g.region]
+            elif g.shape is not None:
+                sel = g.shape.mask(st.x)
             else:
                 sel = np.all((st.x >= np.asarray(g.box.min)) & (st.x <= np.asarray(g.box.max)),
                              axis=1)

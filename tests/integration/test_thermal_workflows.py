@@ -5,7 +5,9 @@ workflows/thermal_cracking.yaml).
   equation, at the end (rel_error <= 0.02, measured 6.5e-5) and along the recorded history of
   its middle element; a run stopped and resumed from a checkpoint ends bit-identical (the field
   is restored, not attached twice);
-* the heated borehole: thermal expansion breaks bonds (none without expansion: slow control);
+* the heated borehole (a scene composition, at small size): the heater holds its temperature,
+  thermal expansion breaks bonds in tension across radial cracks (none without expansion: slow
+  control);
 * bad input: exit status 2 with the field named.
 """
 import csv
@@ -19,7 +21,6 @@ from typer.testing import CliRunner
 
 from geodem.cli import app
 from geodem.fields.thermal import rod_solution
-from geodem.workflow import WorkflowError, prepare
 from geodem.workflow.schema import load_builtins
 
 load_builtins()
@@ -105,15 +106,35 @@ def test_rod_resumed_from_a_checkpoint_ends_bit_identical(rod_run, tmp_path):
 
 
 def test_heated_borehole_cracks(tmp_path):
-    s = _run(CRACKING, tmp_path / "crack")
-    assert s["status"] == "ok"
-    assert s["broken_bonds"] > 0  # measured 40 (2026-12-02)
+    """The composition (scene: specimen fill, empty hole, groups by shape; damping; heat) at
+    d = 6 mm (268 elements) and 6000 steps: the heater ring holds its fixed temperature, heat
+    flows outwards, bonds break in tension across radial cracks, and the energy books close."""
+    import h5py
+
+    out = tmp_path / "crack"
+    s = _run(CRACKING, out, "model.d=0.006", "model.groups.heater.shape.disc.radius=0.018",
+             "steps.heat.nsteps=6000")
+    assert s["status"] == "ok" and s["n_elements"] == 268  # measured 2026-12-04, seed 0
     assert s["T_max"] == pytest.approx(473.15, rel=1e-12)
     res = s["results"]["heat"]
     assert res["probes"]["heater"] == pytest.approx(473.15, rel=1e-12)
     assert 293.15 < res["probes"]["edge"] < res["probes"]["specimen"] < 473.15
-    assert s["energy_closure_rel_error"] < 1e-3  # measured 1.3e-5
-    assert (tmp_path / "crack" / "heat_temperature.png").stat().st_size > 1000
+    assert 10 <= s["broken_bonds"] <= 40  # measured 20
+    assert res["cracks_tensile"] == s["broken_bonds"] and res["cracks_shear"] == 0
+    assert s["energy_closure_rel_error"] < 1e-3  # measured 3.3e-5
+    # radial cracks: a broken bond runs round the hole (hoop tension), |cos| of its angle with
+    # the radius 0.2-0.45 (random bonds: 2/pi = 0.64); all outside the heater ring
+    ckpt = sorted((out / "checkpoints").glob("*.npz"))[-1]
+    x = np.load(ckpt)["x"]
+    with h5py.File(out / "output.h5") as f:
+        i, j = f["cracks/i"][:], f["cracks/j"][:]
+    b = x[j] - x[i]
+    b /= np.linalg.norm(b, axis=1)[:, None]
+    m = 0.5 * (x[i] + x[j]) - 0.05
+    dist = np.linalg.norm(m, axis=1)
+    cos = np.abs((b * m).sum(axis=1)) / dist
+    assert cos.mean() < 0.5 and dist.min() > 0.012
+    assert (out / "heat_temperature.png").stat().st_size > 1000
 
 
 def test_the_cracking_workflow_area_factor_restores_k():
@@ -128,7 +149,7 @@ def test_the_cracking_workflow_area_factor_restores_k():
     doc = yaml.safe_load(CRACKING.read_text())
     heat = next(st for st in doc["steps"] if st.get("kind") == "heat")
     mat = load_material("sandstone")
-    st, _ = make_specimen("box", (0.1, 0.1), doc["model"]["d_mean"], 0.2, mat.values(), 2,
+    st, _ = make_specimen("box", (0.1, 0.1), doc["model"]["d"], 0.2, mat.values(), 2,
                           seed=0, element=dict(mat.calibrated["2d"]["element"]))
     sim = Simulation(st, backend="numba")
     f = ThermalField(k=heat["conductivity"], c=heat["specific_heat"])
@@ -163,15 +184,16 @@ def test_bad_thermal_input_exits_2_naming_the_field(tmp_path, setting, path, wor
     assert "thermal_rod.yaml:" in res.output or "--set" in res.output
 
 
-def test_bad_borehole_plate(tmp_path):
-    wf = {"metadata": {"name": "bad"},
-          "model": {"type": "borehole_plate", "size": [0.05, 0.05], "hole_radius": 0.02,
-                    "d_mean": 0.004, "material": "rock"},
-          "materials": {"rock": {"library": "sandstone"}},
-          "steps": [{"kind": "heat", "duration": 1.0, "conductivity": 2.0,
-                     "specific_heat": 800.0, "fixed": {"heater": 400.0}}]}
-    p = tmp_path / "wf.yaml"
-    p.write_text(yaml.safe_dump(wf))
-    with pytest.raises(WorkflowError) as err:
-        prepare(p)
-    assert "model.hole_radius" in str(err.value) and "at least 3 d_mean" in str(err.value)
+@pytest.mark.parametrize("setting, path, words", [
+    ("model.regions=[{name: hole, material: granite, shape: {disc: {center: [0.05, 0.05], "
+     "radius: 0.012}}}]", "model.regions[0].material", "a specimen fill cements one material"),
+    ("model.groups.heater={region: hole}", "model.groups.heater.region",
+     "region 'hole' is empty"),
+    ("model.fill=packed", "model.fill", "'lattice', 'random' or 'specimen'"),
+])
+def test_bad_borehole_scene_exits_2_naming_the_field(tmp_path, setting, path, words):
+    res = CliRunner().invoke(app, ["run", str(CRACKING), "-o", str(tmp_path / "x"),
+                                   "--no-progress", "--set", "materials.granite={library: "
+                                   "granite}", "--set", setting])
+    assert res.exit_code == 2, res.output
+    assert path in res.output and words in res.output, res.output

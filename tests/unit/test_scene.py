@@ -20,7 +20,7 @@ def _cfg(**model):
     doc = {"metadata": {"name": "scene"},
            "model": dict({"type": "scene", "dim": 2, "d": 0.02, "material": "rock",
                           "domain": {"box": {"min": [0.0, 0.0], "max": [0.6, 0.3]}}}, **model),
-           "materials": {"rock": ROCK, "clay": CLAY},
+           "materials": {"rock": ROCK, "clay": CLAY, "sand": {"library": "sandstone"}},
            "steps": [{"kind": "run", "nsteps": 1}]}
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "scene.yaml"
@@ -112,6 +112,21 @@ def test_a_3d_box_is_an_fcc_block():
     ({"groups": {"g": {"region": "missing"}}}, "missing"),
     ({"domain": {"box": {"min": [0, 0], "max": [0.01, 0.3]}}}, "thinner"),
     ({"regions": [{"material": "clay", "shape": {"polygon": [[0, 0], [1, 1]]}}]}, "polygon"),
+    ({"regions": [{"material": "clay", "empty": True, "shape": {"below": 0.1}}]},
+     "needs a material, or empty: true"),
+    ({"regions": [{"name": "cave", "empty": True, "shape": {"below": 0.1}}],
+      "groups": {"g": {"region": "cave"}}}, "groups.g.region: region 'cave' is empty"),
+    ({"groups": {"g": {"side": ["xmin", "zmax"]}}}, "groups.g.side: side 'zmax' does not exist"),
+    ({"groups": {"g": {"shape": {"box": {"min": [0, 0, 0], "max": [1, 1, 1]}}}}},
+     "groups.g.shape.box.min: 2 coordinates needed"),
+    ({"groups": {"g": {"side": "xmin", "shape": {"below": 0.1}}}},
+     "exactly one of side, region, box or shape"),
+    ({"fill": "specimen", "material": "sand",
+      "regions": [{"name": "soft", "material": "clay", "shape": {"below": 0.1}}]},
+     "regions[0].material: a specimen fill cements one material"),
+    ({"fill": "specimen", "d": 10.0, "material": "sand",
+      "domain": {"terrain": {"raster": "workflows/data/hill.tif"}}},
+     "fill: a specimen fill packs a box or a polygon domain; allowed for a terrain"),
 ])
 def test_bad_scenes_are_refused_with_the_field(model, where):
     with pytest.raises(WorkflowError) as exc:
@@ -222,3 +237,112 @@ def test_terrain_inputs_are_checked():
     with pytest.raises(WorkflowError) as e:
         _cfg(d=10.0, domain={"terrain": {"raster": HILL, "extent": [0, 0, 100, 100]}})
     assert "give line, not extent" in str(e.value)
+
+
+# ============================================================================ specimen fill, holes
+SAND = {"fill": "specimen", "material": "sand", "d": 0.004,
+        "domain": {"box": {"min": [0.1, 0.2], "max": [0.16, 0.26]}}}
+
+
+def _bond_counts(st):
+    return ((st.nbr >= 0) & (st.cstate == BONDED)).sum(axis=1)
+
+
+def test_a_specimen_fill_is_the_materials_own_packing_cut_by_the_domain():
+    """The library sandstone's 2-D calibration (isotropic packing) in a 6 x 6 cm box at
+    d = 4 mm: about 0.84 x 36 cm^2 / (pi 4 mm^2) = 240 elements, 4 bonds per interior element
+    (docs/thermal.md: 4.02), each with the calibrated element parameters at its size."""
+    from geodem.materials_library import load_material
+
+    built = _build(**SAND)
+    st = built.state
+    lo, hi = np.array([0.1, 0.2]), np.array([0.16, 0.26])
+    tol = 1e-4 * 0.004  # the packing's flat faces move by ~1e-5 d as the cement balances
+    assert np.all(st.x - st.r[:, None] >= lo - tol) and np.all(st.x + st.r[:, None] <= hi + tol)
+    fraction = float(np.pi * (st.r ** 2).sum()) / 0.06 ** 2
+    assert 0.78 < fraction < 0.9 and 200 < st.n < 280
+    assert built.info["specimen_report"]["interior_coordination"] == pytest.approx(4.0, abs=0.3)
+    assert 3.3 < 2.0 * _bond_counts(st).sum() / 2 / st.n < 4.2
+    el = load_material("sandstone").calibrated["2d"]["element"]
+    assert np.allclose(st.kn, el["kn_per_d"] * 2 * st.r, rtol=1e-12)
+    assert np.allclose(st.mu, el["mu"])
+    assert 0.8 <= st.r.min() / 0.002 and st.r.max() / 0.002 <= 1.2 + 1e-9  # distri_rate 0.2
+    again = _build(**SAND).state
+    assert np.array_equal(again.x, st.x)                      # the seed repeats it
+
+
+def test_a_specimen_fill_of_a_polygon_keeps_the_centres_inside():
+    tri = [[0.1, 0.2], [0.16, 0.2], [0.1, 0.26]]
+    built = _build(**dict(SAND, domain={"polygon": tri}))
+    st = built.state
+    assert np.all((st.x[:, 0] - 0.1) + (st.x[:, 1] - 0.2) <= 0.06 + 1e-9)
+    assert built.info["elements_removed"] > 80 and 80 < st.n < 150   # about half of 229
+    assert _bond_counts(st).min() >= 2
+
+
+def test_a_specimen_fill_follows_the_seed():
+    a = _build(**SAND).state
+    cfg = _cfg(**SAND)
+    cfg.metadata.seed = 7
+    b = cfg.model.build(cfg).state
+    assert a.n != b.n or not np.allclose(a.x, b.x)
+
+
+def test_an_empty_region_is_a_hole_without_loose_elements():
+    """A 12 mm hole in the specimen fill: the same packing as without it, the elements with
+    centres in the hole removed (counted), then the ones left with fewer than 2 bonds."""
+    hole = {"name": "hole", "empty": True,
+            "shape": {"disc": {"center": [0.13, 0.23], "radius": 0.012}}}
+    full = _build(**SAND)
+    built = _build(**SAND, regions=[hole])
+    st, info = built.state, built.info
+    c = np.array([0.13, 0.23])
+    inside = np.linalg.norm(full.state.x - c, axis=1) <= 0.012
+    assert info["elements_removed"] == int(inside.sum()) > 20   # pi 12^2 / (pi 2^2) x 0.84 = 30
+    packed = full.state.n + full.info["loose_removed"]  # the packing before any removal
+    assert st.n == packed - info["elements_removed"] - info["loose_removed"]
+    assert full.info["elements_removed"] == 0 and _bond_counts(full.state).min() >= 2
+    assert np.linalg.norm(st.x - c, axis=1).min() > 0.012       # no centre in the hole
+    assert _bond_counts(st).min() >= 2
+    assert "hole" not in info["elements_by_region"]
+
+
+def test_an_empty_region_on_the_lattice_removes_the_centres_inside():
+    hole = {"name": "hole", "empty": True,
+            "shape": {"box": {"min": [0.2, 0.0], "max": [0.4, 0.1]}}}
+    full = _build().state
+    built = _build(regions=[hole])
+    cut = (full.x[:, 0] >= 0.2) & (full.x[:, 0] <= 0.4) & (full.x[:, 1] <= 0.1)
+    assert built.state.n == full.n - int(cut.sum()) and built.info["elements_removed"] == cut.sum()
+    # a later region overrides an empty one: a plug refills part of the hole
+    plug = {"name": "plug", "material": "clay",
+            "shape": {"box": {"min": [0.2, 0.0], "max": [0.3, 0.1]}}}
+    refilled = _build(regions=[hole, plug])
+    assert refilled.info["elements_by_region"]["plug"] > 0
+    assert refilled.state.n == full.n - refilled.info["elements_removed"] > built.state.n
+
+
+def test_groups_by_shape_and_by_a_list_of_sides_last_one_wins():
+    """The heated borehole's groups on a lattice: everything, then the outer faces (1.2 d
+    deep), then a disc that reaches the top and bottom rows; an element goes to the last group
+    that selects it."""
+    from geodem.core.groups import members
+
+    ring = {"center": [0.3, 0.15], "radius": 0.14}
+    built = _build(groups={"rock": {"shape": {"box": {"min": [0, 0], "max": [0.6, 0.3]}}},
+                           "edge": {"side": ["xmin", "xmax", "ymin", "ymax"], "depth": 1.2},
+                           "heater": {"shape": {"disc": ring}}})
+    st = built.state
+    x, y = st.x[:, 0], st.x[:, 1]
+    in_ring = np.hypot(x - 0.3, y - 0.15) <= 0.14
+    on_edge = (x <= 0.034) | (x >= 0.566) | (y <= 0.034) | (y >= 0.2631)
+    # by hand: two rows at the bottom and two at the top (59 each), and in the 13 rows between
+    # two columns at each side in the 7 even rows (x = 0.01, 0.03 / 0.57, 0.59), one in the 6
+    # odd ones (0.02 / 0.58): 59 + 59 + 7 x 4 + 6 x 2 = 158
+    assert int(on_edge.sum()) == 158
+    heater, edge, rock = (set(members(st, g).tolist()) for g in ("heater", "edge", "rock"))
+    assert heater == set(np.flatnonzero(in_ring).tolist()) and len(heater) > 100
+    assert edge == set(np.flatnonzero(on_edge & ~in_ring).tolist())
+    assert 0 < int((on_edge & in_ring).sum()) == 158 - len(edge)   # the disc won those
+    assert rock == set(np.flatnonzero(~on_edge & ~in_ring).tolist())
+    assert len(heater) + len(edge) + len(rock) == st.n
