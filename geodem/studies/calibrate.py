@@ -255,9 +255,8 @@ def check_reachable(spec: CalibrationSpec) -> None:
     for ``spec.dim`` and its micro-structure (:func:`geodem.studies.reach.outside_region`)."""
     from geodem.studies.reach import outside_region
 
-    if spec.fit != "window":  # the charts' nu is the 10-50 % window's
-        return
-    why = outside_region(spec.targets, spec.dim, spec.structure, spec.tolerances)
+    why = outside_region(spec.targets, spec.dim, spec.structure, spec.tolerances,
+                         fit=spec.fit)
     if why:
         raise UnreachableTarget(f"{spec.name}: {why}. Try a bond-strength scatter or a bond "
                                 "range (docs/calibration.md), or calibrate anyway (--force) "

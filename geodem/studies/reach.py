@@ -90,6 +90,9 @@ def reach_study(dim: int, out_dir, s_values=None, rho_values=None, backend=None,
                 else:
                     p.update(nu=m["nu"], E=m["E"], Cu=m["Cu"], Tu=m["Tu"],
                              ratio=m["Cu"] / m["Tu"], wall_time_s=m["wall_time_s"])
+                    el_fit = m.get("fits", {}).get("elastic")
+                    if el_fit:  # the same UCS run below its crack-initiation stress
+                        p.update(nu_elastic=el_fit["nu"], E_elastic=el_fit["E"])
             points.append(p)
             if progress:
                 progress(p)
@@ -111,12 +114,20 @@ def _bounds(points) -> dict:
     if not points:
         return {}
     r = [p["ratio"] for p in points]
-    n = [p["nu"] for p in points]
-    return {"ratio": [min(r), max(r)], "nu": [min(n), max(n)]}
+    out = {"ratio": [min(r), max(r)]}
+    for key in ("nu", "nu_elastic"):
+        n = [p[key] for p in points if key in p]
+        if n:
+            out[key] = [min(n), max(n)]
+    return out
 
 
-#: what the shipped chart keeps of each point (nu and Cu / Tu do not depend on the levels)
-CHART_KEYS = ("s", "rho_s", "nu", "ratio", "error")
+#: what the shipped chart keeps of each point (nu and Cu / Tu do not depend on the levels);
+#: ``nu`` is the UCS test's 10-50 % window fit, ``nu_elastic`` its fit below the
+#: crack-initiation stress (the uniaxial step's two fits)
+CHART_KEYS = ("s", "rho_s", "nu", "nu_elastic", "ratio", "error")
+#: the chart key of each UCS fit
+NU_KEY = {"window": "nu", "elastic": "nu_elastic"}
 
 
 def save_chart(rec: dict) -> Path:
@@ -138,14 +149,15 @@ def shipped_chart(dim: int) -> dict | None:
     return json.loads(path.read_text())
 
 
-def _hull_points(chart: dict, tol_nu: float, tol_ratio: float) -> np.ndarray:
-    """Measured points in ``(ln ratio, nu)``, each widened by the tolerances (a box around
-    every point), so that a target the calibration could still meet within tolerance is in."""
+def _hull_points(chart: dict, tol_nu: float, tol_ratio: float, key: str = "nu") -> np.ndarray:
+    """Measured points in ``(ln ratio, nu)`` (``key``: the fit's nu), each widened by the
+    tolerances (a box around every point), so that a target the calibration could still meet
+    within tolerance is in."""
     pts = []
     for p in chart["points"]:
-        if "ratio" not in p:
+        if "ratio" not in p or key not in p:
             continue
-        x, y = math.log(p["ratio"]), p["nu"]
+        x, y = math.log(p["ratio"]), p[key]
         for dx in (-tol_ratio, tol_ratio):
             for dy in (-tol_nu, tol_nu):
                 pts.append((x + dx, y + dy))
@@ -153,11 +165,11 @@ def _hull_points(chart: dict, tol_nu: float, tol_ratio: float) -> np.ndarray:
 
 
 def outside_region(targets: dict, dim: int, structure: dict, tolerances: dict,
-                   chart: dict | None = None) -> str | None:
+                   chart: dict | None = None, fit: str = "window") -> str | None:
     """Why ``targets`` (``nu``, ``Cu``, ``Tu``) lie outside the charted region of ``dim``, with
     the measured bounds; None when inside, or when no chart applies (another micro-structure,
-    no chart shipped). Inside means: within the convex hull of the measured ``(ln Cu/Tu,
-    nu)`` points widened by the tolerances."""
+    no chart shipped, no points of the UCS ``fit``'s nu). Inside means: within the convex hull
+    of the measured ``(ln Cu/Tu, nu)`` points widened by the tolerances."""
     from scipy.spatial import Delaunay
 
     chart = shipped_chart(dim) if chart is None else chart
@@ -165,7 +177,8 @@ def outside_region(targets: dict, dim: int, structure: dict, tolerances: dict,
             chart["structure"]:
         return None
     tol_r = math.log1p(tolerances["Cu"] + tolerances["Tu"])
-    hull = _hull_points(chart, tolerances["nu"], tol_r)
+    key = NU_KEY[fit]
+    hull = _hull_points(chart, tolerances["nu"], tol_r, key)
     if len(hull) < 4:
         return None
     ratio = float(targets["Cu"]) / float(targets["Tu"])
@@ -188,8 +201,9 @@ def outside_region(targets: dict, dim: int, structure: dict, tolerances: dict,
     span = ("; " + ", ".join(span) + " (within tolerance)") if span else ""
     return (f"Cu / Tu = {ratio:.3g} with nu = {nu:.3g} is outside what the "
             f"{dim}-D {chart['structure']['packing']} packing reaches: measured Cu / Tu "
-            f"{b['ratio'][0]:.3g}-{b['ratio'][1]:.3g}, nu {b['nu'][0]:.2f}-{b['nu'][1]:.2f}"
-            f"{span} (geodem study reach; docs/calibration.md, 'Reachable region')")
+            f"{b['ratio'][0]:.3g}-{b['ratio'][1]:.3g}, nu ({fit} fit) {b[key][0]:.2f}-"
+            f"{b[key][1]:.2f}{span} (geodem study reach; docs/calibration.md, 'Reachable "
+            f"region')")
 
 
 def _plot(path, rec):
@@ -211,6 +225,11 @@ def _plot(path, rec):
         if sel:
             ax.annotate(f"rho_s {rho:g}", (sel[-1]["ratio"], sel[-1]["nu"]), fontsize=7,
                         textcoords="offset points", xytext=(3, -9), color="0.4")
+    el = [p for p in ok if "nu_elastic" in p]
+    if el:
+        ax.scatter([p["ratio"] for p in el], [p["nu_elastic"] for p in el], s=22,
+                   facecolors="none", edgecolors="k", lw=0.7,
+                   label="elastic fit (below crack initiation)")
     ax.add_patch(plt.Rectangle((5, 0.05), 25, 0.30, fill=False, ls="--", color="k", lw=0.8))
     ax.text(5.2, 0.355, "goal: Cu/Tu 5-30, nu 0.05-0.35", fontsize=8)
     ax.set_xscale("log")

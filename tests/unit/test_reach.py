@@ -35,7 +35,7 @@ def test_a_target_within_tolerance_of_the_edge_is_accepted(nu, ratio):
 def test_a_target_outside_is_refused_with_the_measured_bounds(nu, ratio):
     why = _why(nu, ratio)
     assert why is not None
-    assert "measured Cu / Tu 8-20, nu 0.10-0.30" in why
+    assert "measured Cu / Tu 8-20, nu (window fit) 0.10-0.30" in why
 
 
 def test_another_micro_structure_is_not_judged_by_the_chart():
@@ -52,19 +52,29 @@ def test_calibrate_refuses_before_writing_anything(tmp_path, monkeypatch):
     assert not (tmp_path / "out").exists()
 
 
-def test_an_elastic_fit_is_not_judged_by_the_window_chart(monkeypatch):
-    """The charts' nu is the 10-50 % window's; a calibration on the elastic fit measures
-    another nu (lower by the cracks' dilation), so the chart does not refuse it."""
+def test_an_elastic_fit_is_judged_by_the_elastic_points_only(monkeypatch):
+    """A calibration on the elastic fit is judged by the points' ``nu_elastic`` (the same UCS
+    runs below their crack-initiation stress), never by the window's nu; a chart without
+    elastic points judges nothing."""
     import geodem.studies.reach as reach
     from geodem.studies.calibrate import check_reachable
 
-    monkeypatch.setattr(reach, "shipped_chart", lambda dim: CHART)
-    odd = dict(ROCK, Cu=30 * ROCK["Tu"])
-    with pytest.raises(UnreachableTarget):
-        check_reachable(CalibrationSpec(targets=odd, name="odd"))
-    check_reachable(CalibrationSpec(targets=odd, name="odd", fit="elastic"))  # not judged
+    # the same runs with the cracks' dilation left out: nu -0.05-0.15
+    elastic = dict(CHART, bounds=dict(CHART["bounds"], nu_elastic=[-0.05, 0.15]),
+                   points=[dict(p, nu_elastic=p["nu"] - 0.15) if "nu" in p else p
+                           for p in CHART["points"]])
+    t = dict(ROCK, nu=0.25, Cu=12 * ROCK["Tu"])  # inside the window's square, above elastic
+    assert outside_region(t, 2, {"packing": "isotropic"}, TOLERANCES, elastic) is None
+    why = outside_region(t, 2, {"packing": "isotropic"}, TOLERANCES, elastic, fit="elastic")
+    assert "nu (elastic fit) -0.05-0.15" in why and "at Cu / Tu 12 nu -0.08-0.18" in why
+    assert outside_region(t, 2, {"packing": "isotropic"}, TOLERANCES, CHART,
+                          fit="elastic") is None  # no elastic points: not judged
+    monkeypatch.setattr(reach, "shipped_chart", lambda dim: elastic)
+    with pytest.raises(UnreachableTarget, match="nu = 0.25 is outside"):
+        check_reachable(CalibrationSpec(targets=t, name="odd", fit="elastic"))
+    check_reachable(CalibrationSpec(targets=t, name="odd"))  # the window fit reaches it
     with pytest.raises(ValueError, match="fit = 'tangent': allowed 'window' or 'elastic'"):
-        CalibrationSpec(targets=odd, fit="tangent")
+        CalibrationSpec(targets=t, fit="tangent")
 
 
 @pytest.mark.parametrize("dim", [2, 3])
