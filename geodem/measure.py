@@ -142,10 +142,11 @@ def elastic_window(stress, cracks, bonds, window=(0.1, 0.5), crack_fraction=0.00
     its peak dilates strongly inside a fixed 10-50 % window; fitted there, nu measures that
     dilation, not the elastic ratio. ``crack_fraction`` None keeps ``window``.
 
-    Returns ``(lo, hi, sigma_ci)``: ``hi`` is never set so low that fewer than
-    :data:`MIN_POINTS` points remain from ``lo`` (it is then the stress of the last of those
-    points / peak); ``sigma_ci`` is None when the cracks stay below the threshold before the
-    peak.
+    Returns ``(lo, hi, sigma_ci)``. A packing that cracks before ``2 lo`` of its peak is fitted
+    from ``lo = hi / 2`` instead (the lower end skips the first points only to avoid seating
+    effects); ``hi`` is never set so low that fewer than :data:`MIN_POINTS` points remain from
+    ``lo`` (it is then the stress of the last of those points / peak); ``sigma_ci`` is None
+    when the cracks stay below the threshold before the peak.
     """
     lo, hi = _window(window)
     stress = np.asarray(stress, float)
@@ -168,6 +169,7 @@ def elastic_window(stress, cracks, bonds, window=(0.1, 0.5), crack_fraction=0.00
     before = stress[: over[0]]
     sigma_ci = float(before.max()) if before.size else 0.0
     top = sigma_ci / pk
+    lo = min(lo, 0.5 * top)
     pre = np.sort(stress[: ipk + 1][stress[: ipk + 1] >= lo * pk])
     if pre.size >= MIN_POINTS:
         top = max(top, float(pre[MIN_POINTS - 1]) / pk)

@@ -234,7 +234,7 @@ def _plot(path, rec):
     ax.text(5.2, 0.355, "goal: Cu/Tu 5-30, nu 0.05-0.35", fontsize=8)
     ax.set_xscale("log")
     ax.set_xlabel("Cu / Tu (UCS / direct tension)")
-    ax.set_ylabel("nu")
+    ax.set_ylabel("nu: 10-50 % window (dots), elastic fit (circles)")
     ax.set_title(f"reachable region, {rec['dim']}-D isotropic packing (mu {rec['mu']:.2f})")
     ax.legend(fontsize="x-small", loc="best")
     fig.tight_layout()

@@ -83,6 +83,18 @@ def test_elastic_window_stops_where_the_bonds_begin_to_break():
     assert nu_fixed == pytest.approx(2.5 * NU, rel=0.01)
 
 
+def test_a_packing_that_cracks_early_is_fitted_below_its_crack_initiation():
+    """Cracks from 6 % of the peak (before the window's 10 %): the fit runs from 3 % to 6 %,
+    on the elastic part, instead of three cracked points above 10 %."""
+    eps, sig, _ = curve()
+    ci = 0.06 * UCS / E
+    lat = -NU * eps - np.where(eps > ci, 3.0 * NU * (eps - ci), 0.0)
+    cracks = np.where(eps > ci, 100.0, 0.0)
+    lo, hi, sci = elastic_window(sig, cracks, 1000)
+    assert hi == pytest.approx(0.06, abs=2e-3) and lo == pytest.approx(hi / 2)
+    assert poisson_ratio(eps, lat, (lo, hi), stress=sig) == pytest.approx(NU, rel=1e-6)
+
+
 def test_elastic_window_without_damage_or_threshold_keeps_the_window():
     eps, sig, _, cracks = damaged_curve()
     assert elastic_window(sig, np.zeros_like(sig), 1000) == (0.1, 0.5, None)
@@ -94,7 +106,7 @@ def test_elastic_window_keeps_three_points_and_refuses_bad_input():
     sig = np.array([0.0, 1.0, 2.0, 3.0, 4.0, 10.0])
     cracks = np.array([0, 50, 60, 70, 80, 90.0])  # the threshold is passed at the 2nd point
     lo, hi, sci = elastic_window(sig, cracks, 1000, window=(0.05, 0.5))
-    assert sci == 0.0 and hi == pytest.approx(0.3)  # the 3rd point from lo: 3 / 10
+    assert sci == 0.0 and lo == 0.0 and hi == pytest.approx(0.2)  # 3 points: 0, 1, 2 / 10
     with pytest.raises(ValueError, match="differ in length"):
         elastic_window(sig, cracks[:3], 1000)
     with pytest.raises(ValueError, match="allowed bonds > 0"):
