@@ -182,3 +182,41 @@ def box_size_problems(size, dim: int, d_mean: float) -> list:
     return []
 
 
+
+
+# ============================================================================ elastic lattice
+def rock_properties(cfg, name: str, path=("material",)) -> tuple[float, float, float, str]:
+    """``(E, nu, rho, source)`` of material ``name``: a library rock's laboratory values or a
+    rock-property material's; element parameters are refused (BuildError at ``path``)."""
+    from geodem.workflow.schema import LibraryMaterial
+
+    m = cfg.materials[name]
+    if isinstance(m, LibraryMaterial):
+        from geodem.materials_library import load_material
+
+        try:
+            v = load_material(m.library).values()
+        except Exception as exc:  # noqa: BLE001 - reported as a build error
+            raise BuildError(path, f"library material {m.library!r} not readable: "
+                                   f"{exc}") from None
+        return float(v["E"]), float(v["nu"]), float(v["rho"]), \
+            f"library {m.library!r} (laboratory)"
+    if isinstance(m, MacroMaterial):
+        return float(m.E), float(m.nu), float(m.rho), f"material {name!r}"
+    raise BuildError(path, f"material {name!r} gives element parameters; elements: elastic "
+                           f"needs rock properties (a library material or E, nu, rho, ...)")
+
+
+def elastic_medium(cfg, name: str, d: float, dim: int, path=("material",)) -> dict:
+    """The elastic lattice medium (:func:`geodem.materials.elastic_lattice`) of material
+    ``name``'s rock properties at spacing ``d``, with ``source`` (where E, nu, rho came
+    from)."""
+    from geodem.materials import elastic_lattice
+
+    E, nu, rho, src = rock_properties(cfg, name, path)
+    try:
+        med = elastic_lattice(E, nu, rho, d, dim)
+    except ValueError as exc:
+        raise BuildError(path, f"material {name!r}: {exc}") from None
+    med["source"] = src
+    return med
