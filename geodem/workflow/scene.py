@@ -232,7 +232,8 @@ class SceneGroup(Strict):
     def _one(self):
         if sum(v is not None for v in (self.side, self.region, self.box, self.shape,
                                        self.surface)) != 1:
-            raise ValueError("give exactly one of side, region, box, shape or surface")
+            raise ValueError("give exactly one of side, region, box or shape (or surface: a "
+                             "side)")
         if isinstance(self.side, list) and not self.side:
             raise ValueError("side: give a side or a non-empty list of sides")
         return self

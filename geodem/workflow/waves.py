@@ -1,5 +1,7 @@
 """Generic step kind ``wave_source``: a plane P wave sent up through the base of an elastic
-lattice model, with absorbing or free-field sides and receivers (2-D and 3-D).
+lattice model, with absorbing or free-field sides and receivers (2-D scenes; the field
+``wave_boundary`` is written for 3-D too, but on the FCC lattice the wave along z was measured
+16 % slower than c_p, so the step refuses 3-D models until the 3-D medium is calibrated).
 
 The model is a ``scene`` with ``elements: elastic`` (its rock's E, nu, rho converted exactly
 onto the close-packed lattice; docs/scene.md), whose medium (``rho``, ``c_p``, ``c_s``, the
@@ -106,6 +108,11 @@ class WaveSource(StepBase):
 
     def check(self, cfg, groups):
         med, out = model_medium(cfg)
+        if cfg.model.dim != 2:
+            out.append((("kind",), "wave_source runs on 2-D scenes: on the 3-D FCC lattice the "
+                                   "wave along z was measured 16 % slower than c_p and the "
+                                   "boundary's impedance does not match it yet"))
+            return out
         if self.receivers is not None and self.receivers not in groups:
             out.append((("receivers",), unknown_group(self.receivers, groups)))
         for k, side in enumerate(self.side_faces or []):
@@ -161,7 +168,7 @@ class WaveSource(StepBase):
                     s.free[side, axis] = 0.0
                     s.v[side, axis] = 0.0
 
-                ctx.decree(roll, "sides")
+                ctx.decree(roll)
             ctx.set_eta(0.0)
             field = WaveBoundary(med["rho"], med["cp"], med["cs"], med["k0"], med["pitch"],
                                  med["thickness"], float(ref_x[:, -1].min()),
