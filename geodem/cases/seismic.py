@@ -43,7 +43,7 @@ from __future__ import annotations
 import csv
 import math
 import time
-from typing import Optional
+from typing import ClassVar, Optional
 
 import numpy as np
 
@@ -51,7 +51,7 @@ from geodem.cases.common import frames_gif
 from geodem.fields.wave import Pulse, WaveBoundary, face_sets
 from geodem.workflow.schema import F, Int, Name, StepBase, register_step
 from geodem.workflow.animation import label_map, legend_outside, pick_frames, pyplot
-from geodem.workflow.waves import wave_field
+from geodem.workflow.waves import WaveSource, wave_field
 
 RECORDS = "seismic_receivers.npz"
 AMPLIFICATION_CSV = "seismic_amplification.csv"
@@ -207,8 +207,11 @@ class ValleyAmplification(StepBase):
     seismic_snapshots.png, seismic_surface.png, seismic_reference.png and
     seismic_animation.gif."""
 
-    example = {"kind": "valley_amplification", "valley_x": 30.0, "valley_width": 24.0,
-               "gif": False, "snapshots": 2}
+    example = {"kind": "valley_amplification", "reference": False, "gif": False,
+               "snapshots": 2}
+    example_model = WaveSource.example_model
+    #: the steps its example needs before it (the contract test puts them first)
+    example_before: ClassVar[list] = [dict(WaveSource.example, frames=2)]
     wave: Optional[Name] = F(None, description="The wave_source step whose records are used "
                                                "(default: the last one before this step)")
     valley_x: Optional[float] = F(None, unit="m", description="x of the valley axis (default: "
@@ -229,8 +232,7 @@ class ValleyAmplification(StepBase):
     plot: bool = F(True, description="Draw the pictures (needs matplotlib)")
 
     def _wave_step(self, cfg):
-        names = [s.name for s in cfg.steps]
-        k = names.index(self.name) if self.name in names else len(names)
+        k = next((i for i, s in enumerate(cfg.steps) if s is self), len(cfg.steps))
         waves = [s for s in cfg.steps[:k] if s.kind == "wave_source"]
         if self.wave is not None:
             waves = [s for s in waves if s.name == self.wave]

@@ -280,7 +280,8 @@ class Scene(ModelBase):
         "calibrated", description="Element parameters: 'calibrated' (the material's element "
                                   "parameters) or 'elastic' (lattice fill: the material's "
                                   "rock properties E, nu, rho converted exactly onto the "
-                                  "close-packed lattice, element mass one lattice cell, bonds "
+                                  "close-packed lattice, or its kn, ks kept; element mass one "
+                                  "lattice cell, bonds "
                                   "that never break: an elastic medium for waves)")
     min_bonds: Int = F(0, ge=0, le=12, description="Lattice and random fills: elements left "
                                                    "with fewer contacts than this after the "

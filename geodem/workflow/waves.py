@@ -66,11 +66,11 @@ class WaveSource(StepBase):
     elastic lattice scene, the sides absorbing against the flat free field (or plain dashpots,
     or rollers), the group ``receivers`` recorded (geodem.workflow.waves)."""
 
-    example = {"kind": "wave_source", "duration": 0.02, "receivers": "ground",
-               "wavelength": 20.0}
-    example_model = {"type": "scene", "dim": 2, "d": 2.0, "elements": "elastic",
+    example = {"kind": "wave_source", "duration": 0.0025, "wavelength": 0.5,
+               "receivers": "ground"}
+    example_model = {"type": "scene", "dim": 2, "d": 0.01, "elements": "elastic",
                      "lattice_origin": "corner", "half_mass": ["xmin", "xmax"],
-                     "domain": {"box": {"min": [0.0, 0.0], "max": [60.0, 50.0]}},
+                     "domain": {"box": {"min": [0.0, 0.0], "max": [0.1, 0.3]}},
                      "material": "rock", "groups": {"ground": {"surface": "ymax"}}}
     pulse: Literal["ricker", "sine"] = F("ricker", description="Incident particle-velocity "
                                                                "pulse")

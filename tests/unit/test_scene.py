@@ -409,8 +409,11 @@ def test_elastic_elements_are_the_rock_on_the_lattice():
     assert st.xb == pytest.approx(1e6 * d) and st.thickness == d
     assert med["cp"] == pytest.approx(np.sqrt(E / ((1 - nu ** 2) * rho)), rel=1e-12)
     assert med["k0"] == nu and med["source"].startswith("library 'sandstone'")
-    # element parameters refused, another fill refused
-    with pytest.raises(WorkflowError, match="rock properties"):
-        _cfg(lattice_origin="corner", elements="elastic")
+    # element parameters: the medium they make (their kn, ks kept, cell mass, unbreakable)
+    b = _small(elements="elastic")
+    assert b.state.kn == pytest.approx(ROCK["kn"], rel=1e-12)
+    assert b.state.ks == pytest.approx(ROCK["ks"], rel=1e-12)
+    assert b.state.m == pytest.approx(ROCK["rho"] * np.sqrt(3) / 2 * d ** 3, rel=1e-12)
+    # another fill refused
     with pytest.raises(WorkflowError, match="elements applies to fill: lattice"):
         _cfg(fill="random", elements="elastic", material="sand")
