@@ -128,7 +128,7 @@ CASE_OF = (("two_balls", {"two_balls"}), ("ucs", {"uniaxial", "specimen"}),
            ("thermal_rod", {"heat", "thermal_bar"}),
            ("consolidation", {"flow", "darcy", "consolidation", "hydrofrac_plate"}),
            ("column_collapse", {"granular_column", "collapse"}),
-           ("wave_speed", {"valley_section", "seismic_wave"}),
+           ("wave_speed", {"wave_source", "valley_amplification"}),
            ("lattice", {"lattice_block"}))
 
 

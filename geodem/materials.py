@@ -117,3 +117,60 @@ def _with_structure(out: dict, source: dict) -> dict:
         if source.get(k) is not None:
             out[k] = source[k]
     return out
+
+
+# ============================================================================ elastic lattice
+SQRT3 = math.sqrt(3.0)
+
+
+def elastic_lattice(E, nu, rho, d, dim=2) -> dict:
+    """Element parameters that make the close-packed lattice of spacing ``d`` the elastic
+    medium ``E, nu, rho`` exactly, and its wave speeds (docs/scene.md, ``elements: elastic``).
+
+    2-D: the triangular lattice of thickness ``t = d`` (VALIDATION.md; -1 < nu <= 1/3)::
+
+        Kn = E t / (sqrt3 (1 - nu)),   Ks = Kn (1 - 3 nu) / (1 + nu),   m = rho (sqrt3/2) d^2 t
+        M = E / (1 - nu^2),   G = E / (2 (1 + nu)),   K0 = nu
+
+    3-D: the FCC lattice (:func:`macro_to_micro` stiffnesses, ``m = rho d^3 / sqrt2``;
+    -1 < nu <= 0.2), ``M = E (1 - nu) / ((1 + nu)(1 - 2 nu))``, ``K0 = nu / (1 - nu)``.
+
+    Element values ``kn = 2 Kn``, ``ks = 2 Ks``; ``c_p = sqrt(M / rho)``, ``c_s = sqrt(G /
+    rho)``; ``K0`` is the lateral stress ratio of a plane P wave (uniaxial strain);
+    ``pitch``: the lattice's row spacing along each axis (``d``, ``d sqrt3/2``, ``d
+    sqrt(2/3)``); ``thickness``: 2-D only (None in 3-D); ``element``: the element parameters
+    (these stiffnesses and the cell's mass; bonds that never break: ``xb = 10^6 d``, ``fs0 =
+    10^30``, ``mu = 0.5``)."""
+    if dim == 2:
+        if not -1.0 < nu <= 1.0 / 3.0:
+            raise ValueError(f"nu = {nu:g}: the triangular lattice reaches -1 < nu <= 1/3")
+        t = d
+        Kn = E * t / (SQRT3 * (1.0 - nu))
+        Ks = Kn * (1.0 - 3.0 * nu) / (1.0 + nu)
+        m = rho * 0.5 * SQRT3 * d * d * t
+        M = E / (1.0 - nu * nu)
+        k0 = nu
+        pitch = [d, 0.5 * SQRT3 * d]
+    else:
+        if not -1.0 < nu <= 0.2:
+            raise ValueError(f"nu = {nu:g}: the close-packed (FCC) lattice reaches -1 < nu "
+                             f"<= 0.2")
+        t = None
+        Kn = SQ2 * E * d / (4 * (1 - 2 * nu))
+        Ks = SQ2 * (1 - 5 * nu) * E * d / (4 * (1 + nu) * (1 - 2 * nu))
+        m = rho * d ** 3 / SQ2
+        M = E * (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu))
+        k0 = nu / (1.0 - nu)
+        pitch = [d, 0.5 * SQRT3 * d, math.sqrt(2.0 / 3.0) * d]
+    G = E / (2.0 * (1.0 + nu))
+    return {"E": E, "nu": nu, "rho": rho, "d": d, "dim": dim, "thickness": t, "Kn": Kn,
+            "Ks": Ks, "kn": 2.0 * Kn, "ks": 2.0 * Ks, "mass": m, "M": M, "G": G, "k0": k0,
+            "cp": math.sqrt(M / rho), "cs": math.sqrt(G / rho), "pitch": pitch,
+            "element": {"kn": 2.0 * Kn, "ks": 2.0 * Ks, "xb": 1.0e6 * d, "fs0": 1.0e30,
+                        "mu": 0.5, "rho": rho, "mass": m}}
+
+
+def lattice_E_nu(Kn: float, Ks: float, t: float) -> tuple[float, float]:
+    """``(E, nu)`` of the 2-D triangular lattice from its bond stiffnesses (VALIDATION.md)."""
+    return (2.0 * SQRT3 * Kn * (Kn + Ks) / (t * (3.0 * Kn + Ks)),
+            (Kn - Ks) / (3.0 * Kn + Ks))

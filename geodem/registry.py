@@ -26,7 +26,7 @@ BUILTINS: dict[str, tuple[str, ...]] = {
     "fields": ("geodem.fields.thermal",
                "geodem.fields.pore",
                "geodem.fields.freeze",
-               "geodem.cases.seismic",    # seismic_boundary
+               "geodem.fields.wave",      # wave_boundary
                "geodem.cases.tbm"),       # cutter_kinematics
     # workflow models and step kinds: the generic ones, then one module per case
     "workflow": ("geodem.cases.two_balls",     # two_balls, two_balls_check
@@ -35,13 +35,14 @@ BUILTINS: dict[str, tuple[str, ...]] = {
                  "geodem.workflow.scene",   # scene: a model composed from parts
                  "geodem.workflow.monitoring",  # monitor, pressure: generic, any model
                  "geodem.workflow.excavation",  # excavate, weaken
+                 "geodem.workflow.waves",   # wave_source: a plane wave through an absorbing base
                  "geodem.cases.uniaxial",   # specimen, uniaxial
                  "geodem.cases.brazilian",  # brazilian_disc, brazilian, direct_tension
                  "geodem.cases.triaxial",   # triaxial_box, triaxial
                  "geodem.cases.thermal",    # thermal models and steps
                  "geodem.cases.hydrofrac",  # pore-fluid models and steps
                  "geodem.cases.collapse",   # granular column collapse
-                 "geodem.cases.seismic",    # seismic valley, absorbing boundaries
+                 "geodem.cases.seismic",    # valley_amplification (on a scene + wave_source)
                  "geodem.cases.landslide",  # landslide from an elevation raster
                  "geodem.cases.tbm",        # TBM disc cutter
                  "geodem.cases.tunnel",     # tunnel_check (on a scene + generic steps)

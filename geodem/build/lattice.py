@@ -243,6 +243,24 @@ def contact_pairs(x, r, gap=0.0):
 
 
 # --------------------------------------------------------------------------- specimen
+def prune_loose(x, r, min_contacts, gap=0.0):
+    """Keep of the centres ``x`` (radii ``r``) those with at least ``min_contacts`` contacts
+    (:func:`contact_pairs` with ``gap``), removing the others again and again (a removal can
+    leave a neighbour short). Returns the bool mask of the kept centres."""
+    x = np.asarray(x, dtype=np.float64)
+    r = np.broadcast_to(np.asarray(r, dtype=np.float64), (len(x),))
+    keep = np.ones(len(x), bool)
+    while keep.any() and min_contacts > 0:
+        idx = np.flatnonzero(keep)
+        i, j = contact_pairs(x[idx], r[idx], gap=gap)
+        count = np.bincount(np.concatenate([i, j]), minlength=len(idx))
+        short = count < min_contacts
+        if not short.any():
+            break
+        keep[idx[short]] = False
+    return keep
+
+
 def random_specimen(n, dim=3, seed=0, size_ratio=1.2, d=1.0):
     """Dense, polydisperse bonded-specimen stand-in of about ``n`` elements: ``(x, r)``.
 

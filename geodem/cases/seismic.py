@@ -1,93 +1,58 @@
-"""Seismic valley: a P wave from the base of a 2-D bonded rock section with a V-shaped valley,
-absorbing (viscous) boundaries, surface receivers and the amplification of ground acceleration
-(MatDEM's seismic case, Liu et al. 2020; PHYSICS.md section 7; docs/seismic_valley.md).
+"""Seismic valley: ground amplification of a V-shaped valley under a vertically incident P
+wave (MatDEM's seismic case, Liu et al. 2020; PHYSICS.md section 7; docs/seismic_valley.md).
 
-* model ``valley_section``: a regular triangular lattice (rows along x, spacing ``d / scale``)
-  filling ``width x height`` (m), cut by a V-shaped valley (``valley_width`` at the ground line,
-  ``valley_depth`` deep, centred at ``valley_x``; ``valley_depth: 0`` is a flat section); elements
-  left with fewer than two bonds are dropped. The rock is an elastic medium of Young's modulus
-  ``E``, Poisson's ratio ``nu`` and density ``rho`` (given, or a library / rock-property material):
-  on the regular lattice these map exactly onto bonds (VALIDATION.md, 2-D triangular lattice of
-  thickness ``t = d``)::
+The case is a composition (workflows/seismic_valley.yaml): a ``scene`` (a box with an empty V
+region, ``fill: lattice`` from the corner, ``elements: elastic``: the rock's E, nu, rho on the
+triangular lattice; the ground line as a ``surface`` group), the generic step ``wave_source``
+(geodem.workflow.waves: the pulse through the Lysmer-Kuhlemeyer base, free-field sides, the
+ground line recorded) and the step here, ``valley_amplification``, which turns the records
+into the case's results:
 
-      Kn = E t / (sqrt3 (1 - nu)),   Ks = Kn (1 - 3 nu) / (1 + nu)    (-1 < nu <= 1/3)
-      m  = rho (sqrt3 / 2) d^2 t                                     (the element's cell)
+* a flat reference column (``reference_width`` elements wide, the section's height, the same
+  scene's lattice and rock, roller sides, the same pulse, base and time step) is run and
+  measured (:func:`measure_column`):
 
-  element values ``kn = 2 Kn``, ``ks = 2 Ks``; bonds never break (an elastic wave problem).
-  The 2-D medium's P-wave (constrained) modulus is ``M = lambda + 2 mu = E / (1 - nu^2)`` and
-  its shear modulus ``G = E / (2 (1 + nu))``, so
-
-      c_p = sqrt(M / rho) = sqrt(E / ((1 - nu^2) rho)),   c_s = sqrt(G / rho).
-
-  Groups: ``base`` (bottom row), ``sides`` (left and right columns), ``surface`` (the ground
-  line: the top element of every d-wide strip along x) and ``rock`` (the rest).
-
-* coupled field ``seismic_boundary`` (:class:`SeismicBoundary`, every mechanical step): the
-  Lysmer-Kuhlemeyer viscous boundary and the input. On each boundary element of tributary length
-  ``L`` (base: ``d``; sides: the row spacing ``d sqrt3 / 2``), area ``A = L t``:
-
-      base:  F_y = rho c_p A (2 v_in(t) - v_y),   F_x = -rho c_s A v_x
-      sides (free_field): F_n = -rho c_p A v_n + sigma_xx^ff n_x A,
-                          F_t = rho c_s A (v_y^ff(y, t) - v_y)
-
-  so the base injects an up-going plane P wave of particle velocity ``v_in`` and absorbs what
-  comes down; the sides absorb what leaves the section relative to the analytic free field of a
-  flat ground (incident plus surface-reflected wave, ``v_y^ff = v_in(t - y/c_p) + v_in(t -
-  (2H - y)/c_p)``, ``sigma_yy^ff = -rho c_p (v_in(t - y/c_p) - v_in(t - (2H - y)/c_p))``,
-  ``sigma_xx^ff = nu sigma_yy^ff``). ``sides: absorbing`` drops the free field (plain dashpots),
-  ``roller`` fixes the side elements horizontally (exact for a flat section: uniaxial strain).
-  The forces go into ``fload`` (their work is booked as external work). The field also records
-  the velocity and acceleration (``State.a``) of the receivers every ``record_every`` steps.
-
-* step ``seismic_wave``: a flat reference column (``reference_width`` elements wide, roller
-  sides, the section's far-field height, same lattice, pulse and base) is run first and measured
-  (:func:`measure_column`), then the section itself (global damping off). Results (summary.json):
-
-  - ``p_wave_speed_rel_error``: |c_measured - c_p| / c_p, ``c_measured`` the slope of the arrival
-    time (energy centroid of v_y^2 in the up-going window) against height over the column's
-    receivers that see the incident pulse separated from the base and surface ones;
+  - ``p_wave_speed_rel_error``: |c_measured - c_p| / c_p, ``c_measured`` the slope of the
+    arrival time (energy centroid of v_y^2 in the up-going window) against height over the
+    column's receivers that see the incident pulse separated from the base and surface ones;
   - ``free_surface_amplification``: the peak |a| of the column's surface element over the mean
     incident peak |a_y| of those receivers (2 for vertical incidence);
-  - ``boundary_reflection``: at the column receivers far enough from both ends, the peak |a_y| in
-    the window of a wave coming back up from the base after the surface round trip (arrival
-    ``t_c + (2H + y)/c_p``) over the peak |a_y| of the down-going wave (``t_c + (2H - y)/c_p``),
-    largest over those receivers;
-  - ``amplification_max``, ``amplification_location_m``: along the ground line of the section,
-    ``amplification(x) = max_t |a(x, t)| / A_flat``, ``A_flat`` the peak |a| at the flat
-    reference column's surface; its largest value and the x [m] of that receiver
-    (``amplification_offset_m``: from the valley axis; ``amplification_flat_ground``: the median
-    over the ground more than one wavelength from the valley rims and the sides, ~1 when the
-    sides are right).
+  - ``boundary_reflection``: at the column receivers far enough from both ends, the peak |a_y|
+    in the window of a wave coming back up from the base after the surface round trip
+    (arrival ``t_c + (2H + y)/c_p``) over the peak |a_y| of the down-going wave (``t_c + (2H -
+    y)/c_p``), largest over those receivers;
 
-  Outputs: ``seismic_receivers.npz`` (receiver positions, times, v and a histories),
-  ``seismic_amplification.csv``, ``seismic_snapshots.png`` (particle speed maps),
-  ``seismic_surface.png`` (ground-line acceleration record and amplification),
-  ``seismic_reference.png`` (column: arrival times and traces), ``seismic_animation.gif`` and
-  ``seismic_vtk/`` (.vtp frames and a .pvd collection, ParaView).
+* along the ground line (the wave step's receivers), ``amplification(x) = max_t |a(x, t)| /
+  A_flat``, ``A_flat`` the peak |a| at the reference column's surface, accelerations low-passed
+  at 3 f and the profile averaged along the ground over half a wavelength:
+  ``amplification_max`` and ``amplification_location_m`` (more than ``edge_exclusion``
+  wavelengths from the sides), ``amplification_offset_m`` (from the valley axis),
+  ``amplification_flat_ground`` (the median over the ground more than one wavelength from the
+  valley rims and the sides, ~1 when the sides are right).
 
-Reference: Lysmer, J., Kuhlemeyer, R. L. (1969) Finite dynamic model for infinite media, J. Eng.
-Mech. Div. ASCE 95(EM4), 859-877; Liu, C. et al. (2020) MatDEM - fast matrix computing of the
-discrete element method.
+Outputs: ``seismic_receivers.npz`` (receiver positions, times, v and a histories, the column's
+records), ``seismic_amplification.csv``, ``seismic_snapshots.png`` (particle speed maps from the
+wave step's frames), ``seismic_surface.png`` (ground-line acceleration record and
+amplification), ``seismic_reference.png`` (column: arrival times and traces) and
+``seismic_animation.gif``.
+
+Reference: Liu, C. et al. (2020) MatDEM - fast matrix computing of the discrete element method.
 """
 from __future__ import annotations
 
 import csv
 import math
 import time
-from typing import Literal, Optional
+from typing import ClassVar, Optional
 
 import numpy as np
 
-from geodem.cases.common import frames_gif, needs_model
-from geodem.fields import CoupledField, register_field
-from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
-from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, register_model, \
-    register_step
+from geodem.cases.common import frames_gif
+from geodem.fields.wave import Pulse, WaveBoundary, face_sets
+from geodem.workflow.schema import F, Int, Name, StepBase, register_step
 from geodem.workflow.animation import label_map, legend_outside, pick_frames, pyplot
+from geodem.workflow.waves import WaveSource, wave_field
 
-SQRT3 = math.sqrt(3.0)
-FRAMES_DIR = "seismic_frames"
-VTK_DIR = "seismic_vtk"
 RECORDS = "seismic_receivers.npz"
 AMPLIFICATION_CSV = "seismic_amplification.csv"
 #: accelerations are low-passed at this multiple of the pulse frequency before their peaks are
@@ -98,348 +63,51 @@ LOWPASS = 3.0
 SMOOTH = 0.5
 
 
-# ============================================================================ the medium
-def lattice_medium(E: float, nu: float, rho: float, d: float) -> dict:
-    """Bond and element parameters of a triangular lattice (spacing ``d``, thickness ``t = d``)
-    that is the plane elastic medium ``E, nu, rho``, and its wave speeds (module docstring)."""
-    if not -1.0 < nu <= 1.0 / 3.0:
-        raise ValueError(f"nu = {nu:g}: the triangular lattice reaches -1 < nu <= 1/3")
-    t = d
-    Kn = E * t / (SQRT3 * (1.0 - nu))
-    Ks = Kn * (1.0 - 3.0 * nu) / (1.0 + nu)
-    m = rho * 0.5 * SQRT3 * d * d * t
-    M = E / (1.0 - nu * nu)
-    G = E / (2.0 * (1.0 + nu))
-    return {"E": E, "nu": nu, "rho": rho, "d": d, "thickness": t, "Kn": Kn, "Ks": Ks,
-            "kn": 2.0 * Kn, "ks": 2.0 * Ks, "mass": m, "M": M, "G": G,
-            "cp": math.sqrt(M / rho), "cs": math.sqrt(G / rho)}
-
-
-def lattice_E_nu(Kn: float, Ks: float, t: float) -> tuple[float, float]:
-    """``(E, nu)`` of the triangular lattice from its bond stiffnesses (VALIDATION.md)."""
-    return (2.0 * SQRT3 * Kn * (Kn + Ks) / (t * (3.0 * Kn + Ks)),
-            (Kn - Ks) / (3.0 * Kn + Ks))
-
-
-# ============================================================================ the pulse
-class Pulse:
-    """Particle-velocity time function of the incident wave: ``ricker`` (peak ``amplitude`` at
-    ``t_c = 1.2 / frequency``, support ``[0, 2 t_c]``) or ``sine`` (``cycles`` periods of a sine
-    under a Hann window, support ``[0, cycles / frequency]``)."""
-
-    def __init__(self, kind: str, frequency: float, amplitude: float, cycles: float = 2.0):
-        self.kind, self.f, self.amp, self.cycles = kind, float(frequency), float(amplitude), \
-            float(cycles)
-        if kind == "ricker":
-            self.t_c = 1.2 / self.f
-            self.duration = 2.0 * self.t_c
-        elif kind == "sine":
-            self.duration = self.cycles / self.f
-            self.t_c = 0.5 * self.duration
-        else:
-            raise ValueError(f"pulse {kind!r}: allowed ricker, sine")
-        self.half = 0.5 * self.duration  # half-width of its window around t_c
-
-    def config(self) -> dict:
-        return {"kind": self.kind, "frequency": self.f, "amplitude": self.amp,
-                "cycles": self.cycles}
-
-    def __call__(self, t):
-        t = np.asarray(t, float)
-        if self.kind == "ricker":
-            u = (math.pi * self.f * (t - self.t_c)) ** 2
-            out = self.amp * (1.0 - 2.0 * u) * np.exp(-u)
-        else:
-            on = (t > 0) & (t < self.duration)
-            out = np.where(on, self.amp * np.sin(2 * math.pi * self.f * t)
-                           * np.sin(math.pi * t / self.duration) ** 2, 0.0)
-        return out
-
-
-# ============================================================================ the section
-def section_points(width, height, d, valley_width=0.0, valley_depth=0.0, valley_x=None):
-    """Centres of the triangular lattice filling ``[0, width] x [0, height]`` minus the V valley
-    (a :class:`geodem.build.shapes.Polygon` cut from the box), elements with fewer than two
-    contacts dropped repeatedly. Returns ``(x, y_top)``, ``y_top`` the ground line of the flat
-    part (the top row)."""
-    from geodem.build.lattice import contact_pairs, triangular_lattice
-    from geodem.build.shapes import Box, Polygon
-
-    h = 0.5 * SQRT3 * d
-    nx = int(math.floor(width / d + 1e-9)) + 1
-    ny = int(math.floor(height / h + 1e-9)) + 1
-    x = triangular_lattice(nx, ny, d)
-    x = x[x[:, 0] <= width + 1e-9 * d]
-    y_top = float(x[:, 1].max())
-    shape = Box((-d, -d), (width + d, y_top + d))
-    if valley_depth > 0:
-        xc = 0.5 * width if valley_x is None else valley_x
-        over = 2.0 * d  # the V's sides carried on above the ground line
-        s = 0.5 * valley_width / valley_depth
-        bottom = y_top - valley_depth
-        top = y_top + over
-        shape = shape - Polygon(((xc - s * (top - bottom), top), (xc + s * (top - bottom), top),
-                                 (xc, bottom)))
-    x = x[shape.mask(x)]
-    while True:
-        i, j = contact_pairs(x, 0.5 * d, gap=1e-6 * d)
-        count = np.bincount(np.concatenate([i, j]), minlength=len(x))
-        short = count < 2
-        if not short.any():
-            break
-        x = x[~short]
-    return x, y_top
-
-
-def boundary_sets(x, d):
-    """Index sets of a section: ``base`` (bottom row), ``left``, ``right`` (the outer columns:
-    both row parities) and ``surface`` (the top element of every d-wide strip along x)."""
-    lo, hi = x.min(axis=0), x.max(axis=0)
-    tol = 1e-6 * d
-    base = np.flatnonzero(x[:, 1] <= lo[1] + tol)
-    left = np.flatnonzero(x[:, 0] <= lo[0] + 0.5 * d + tol)
-    right = np.flatnonzero(x[:, 0] >= hi[0] - 0.5 * d - tol)
-    strip = np.floor((x[:, 0] - lo[0]) / d + 1e-6).astype(np.int64)
-    order = np.lexsort((x[:, 1], strip))  # by strip, then height: the last of each strip is top
-    s = strip[order]
-    last = np.r_[s[1:] != s[:-1], True]
-    surface = np.sort(order[last])
-    return {"base": base, "left": left, "right": right, "surface": surface}
-
-
-def build_section(medium: dict, width, height, valley_width=0.0, valley_depth=0.0,
-                  valley_x=None):
-    """The bonded section (a :class:`State`, elements in Morton order) and its geometry:
-    ``(state, info)``; groups ``rock``, ``surface``, ``sides``, ``base``."""
-    from geodem.build.lattice import bonded_state
-    from geodem.core import groups as grp
-    from geodem.core.neighbors import spatial_sort
-
-    d = medium["d"]
-    x, y_top = section_points(width, height, d, valley_width, valley_depth, valley_x)
-    st = bonded_state(x, 0.5 * d, density=medium["rho"], kn=medium["kn"], ks=medium["ks"],
-                      xb=1.0e6 * d, fs0=1.0e30, mu=0.5, gap=1e-6 * d,
-                      thickness=medium["thickness"])
-    st.m[:] = medium["mass"]
-    lo, hi = st.x.min(axis=0), st.x.max(axis=0)
-    tol = 1e-6 * d
-    # elements centred on the side planes own half a lattice cell (they miss the two diagonal
-    # bonds beyond the plane): half the mass keeps their vertical frequency that of the
-    # interior, as if the model were mirrored there (a full mass slows a narrow column's wave
-    # by ~5 %). The base row keeps its full mass (halving it changed the base reflection
-    # little and halves the time step).
-    on_plane = (np.abs(st.x[:, 0] - lo[0]) < tol) | (np.abs(st.x[:, 0] - hi[0]) < tol)
-    st.m[on_plane] *= 0.5
-    spatial_sort(st)
-    sets = boundary_sets(st.x, d)
-    st.groups = {"all": 0}
-    st.group[:] = 0
-    grp.add_group(st, "rock", np.arange(st.n))
-    st.group[:] = 0
-    grp.add_group(st, "surface", sets["surface"])
-    sides = np.zeros(st.n, bool)
-    sides[sets["left"]] = sides[sets["right"]] = True
-    sides[sets["base"]] = False
-    st.group[sides] = 0
-    grp.add_group(st, "sides", sides)
-    st.group[sets["base"]] = 0
-    grp.add_group(st, "base", sets["base"])
-    st.group[st.group == 0] = st.groups["rock"]
-    xc = 0.5 * width if valley_x is None else float(valley_x)
-    info = {"diameter": d, "thickness": medium["thickness"], "width": float(width),
-            "height": float(height), "y_base": float(st.x[:, 1].min()), "y_top": y_top,
-            "x_min": float(st.x[:, 0].min()), "x_max": float(st.x[:, 0].max()),
-            "valley_width": float(valley_width), "valley_depth": float(valley_depth),
-            "valley_x": xc,
-            "medium": {k: medium[k] for k in ("E", "nu", "rho", "Kn", "Ks", "kn", "ks",
-                                              "mass", "M", "G", "cp", "cs")}}
-    return st, info
-
-
-# ============================================================================ the boundary
-@register_field("seismic_boundary")
-class SeismicBoundary(CoupledField):
-    """Lysmer-Kuhlemeyer viscous boundary with the base input and the receivers (module
-    docstring). Index sets are set with :meth:`set_sets` (fresh) or :meth:`restore`."""
-
-    reads = {"v": "m/s", "a": "m/s^2", "x_ref": "m"}
-    writes = {"fload": "N", "eta": "kg/s"}
-
-    def __init__(self, rho, cp, cs, nu, thickness, d, y_base, y_top, pulse: dict,
-                 sides="free_field", record_every=2, t_start=0.0, every=1):
-        super().__init__(every)
-        if sides not in ("free_field", "absorbing", "roller"):
-            raise ValueError(f"sides {sides!r}: allowed free_field, absorbing, roller")
-        self.rho, self.cp, self.cs, self.nu = float(rho), float(cp), float(cs), float(nu)
-        self.t, self.d = float(thickness), float(d)
-        self.y_base, self.y_top = float(y_base), float(y_top)
-        self.pulse_cfg = dict(pulse)
-        self.pulse = Pulse(**pulse)
-        self.sides = sides
-        self.record_every = int(record_every)
-        self.t_start = float(t_start)
-        self.sets = {k: np.zeros(0, np.int64) for k in ("base", "left", "right", "receivers",
-                                                        "patch_idx", "patch_ptr")}
-        self.rec_t, self.rec_v, self.rec_a = [], [], []
-        self.wall, self.calls = 0.0, 0  # its own cost (seconds, couplings)
-
-    # -- contract
-    def attach(self, sim) -> None:
-        self._prepare(sim.state)
-
-    def stable_dt(self, sim) -> float:
-        return math.inf
-
-    def substep(self, sim, h) -> None:  # pragma: no cover - advance is overridden
-        pass
-
-    def config(self) -> dict:
-        return {"rho": self.rho, "cp": self.cp, "cs": self.cs, "nu": self.nu,
-                "thickness": self.t, "d": self.d, "y_base": self.y_base, "y_top": self.y_top,
-                "pulse": self.pulse_cfg, "sides": self.sides, "record_every": self.record_every,
-                "t_start": self.t_start, "every": self.every}
-
-    def arrays(self) -> dict:
-        out = {f"set_{k}": v for k, v in self.sets.items()}
-        n = len(self.sets["receivers"])
-        out["rec_t"] = np.asarray(self.rec_t, float)
-        out["rec_v"] = np.asarray(self.rec_v, float).reshape(-1, n, 2)
-        out["rec_a"] = np.asarray(self.rec_a, float).reshape(-1, n, 2)
-        return out
-
-    def restore(self, arrays: dict) -> None:
-        self.sets = {k: np.asarray(arrays[f"set_{k}"], np.int64) for k in self.sets}
-        self.rec_t = [float(v) for v in arrays["rec_t"]]
-        self.rec_v = list(np.asarray(arrays["rec_v"]))
-        self.rec_a = list(np.asarray(arrays["rec_a"]))
-        if getattr(self, "_state", None) is not None:
-            self._prepare(self._state)
-
-    def summary(self) -> dict:
-        return {"boundary_elements": int(len(self._idx)) if hasattr(self, "_idx") else 0,
-                "sides": self.sides, "records": len(self.rec_t)}
-
-    # -- set-up
-    def set_sets(self, base, left, right, receivers, state) -> None:
-        """The boundary sets and the receivers; a receiver records the mean motion of its
-        element and the elements bonded to it (a patch about two spacings across: a single
-        staircase corner of a slope rings on its own)."""
-        from geodem.core.state import BONDED
-
-        receivers = np.asarray(receivers, np.int64)
-        patches = [np.concatenate([[r], state.nbr[r][state.cstate[r] == BONDED]])
-                   for r in receivers]
-        self.sets = {"base": np.asarray(base, np.int64), "left": np.asarray(left, np.int64),
-                     "right": np.asarray(right, np.int64), "receivers": receivers,
-                     "patch_idx": np.concatenate(patches).astype(np.int64) if patches else
-                     np.zeros(0, np.int64),
-                     "patch_ptr": np.cumsum([0] + [len(p) for p in patches]).astype(np.int64)}
-        self._prepare(state)
-
-    def _prepare(self, st) -> None:
-        self._state = st
-        ptr = self.sets["patch_ptr"]
-        self._patch_start = ptr[:-1] if len(ptr) > 1 else np.zeros(0, np.int64)
-        self._patch_cnt = np.diff(ptr)[:, None].astype(float) if len(ptr) > 1 else \
-            np.ones((0, 1))
-        base, left, right = self.sets["base"], self.sets["left"], self.sets["right"]
-        if self.sides == "roller":
-            left = right = np.zeros(0, np.int64)
-        self._idx = np.unique(np.concatenate([base, left, right]))
-        pos = {k: np.searchsorted(self._idx, v) for k, v in
-               (("base", base), ("left", left), ("right", right))}
-        self._pos = pos
-        self._force = np.zeros((len(self._idx), 2))
-        zt = self.rho * self.t
-        self._zb = (zt * self.d * self.cp, zt * self.d * self.cs)           # base: L = d
-        h = 0.5 * SQRT3 * self.d
-        self._zs = (zt * h * self.cp, zt * h * self.cs)                      # sides: L = row
-        self._area_side = h * self.t
-        y = st.x_ref[np.concatenate([left, right]), 1] - self.y_base
-        H = self.y_top - self.y_base
-        self._tau_up = y / self.cp                      # incident arrival delay
-        self._tau_dn = (2.0 * H - y) / self.cp          # surface-reflected arrival delay
-        self._nx = np.concatenate([-np.ones(len(left)), np.ones(len(right))])
-        # the normal (P) dashpots are the engine's own damping eta (implicit in the velocity
-        # update, booked as viscous heat); fload carries the input, the free field and the
-        # tangential difference rho (c_p - c_s) A v (the engine's eta is isotropic)
-        eta = np.zeros(len(self._idx))
-        eta[pos["base"]] += self._zb[0]
-        eta[pos["left"]] += self._zs[0]
-        eta[pos["right"]] += self._zs[0]
-        st.eta[self._idx] = eta
-
-    # -- the coupling, every mechanical step
-    def advance(self, sim, span: float) -> int:
-        c0 = time.perf_counter()
-        st = sim.state
-        t = st.time + st.dt - self.t_start  # time of the next force evaluation
-        v = st.v
-        f = self._force
-        f[:] = 0.0
-        p = self._pos
-        vb = v[self.sets["base"]]
-        zp, zs = self._zb
-        f[p["base"], 0] += (zp - zs) * vb[:, 0]
-        f[p["base"], 1] += 2.0 * zp * float(self.pulse(t))
-        if self.sides != "roller" and len(self._nx):
-            side = np.concatenate([p["left"], p["right"]])
-            vs = v[self._idx[side]]
-            zp, zs = self._zs
-            f[side, 1] += (zp - zs) * vs[:, 1]
-            if self.sides == "free_field":
-                up, dn = self.pulse(t - self._tau_up), self.pulse(t - self._tau_dn)
-                sxx = -self.nu * self.rho * self.cp * (up - dn)
-                f[side, 0] += sxx * self._nx * self._area_side
-                f[side, 1] += zs * (up + dn)
-        st.fload[self._idx] = f
-        if self.record_every and st.step % self.record_every == 0:
-            idx, start, cnt = self.sets["patch_idx"], self._patch_start, self._patch_cnt
-            self.rec_t.append(st.time - self.t_start)
-            self.rec_v.append(np.add.reduceat(v[idx], start, axis=0) / cnt)
-            self.rec_a.append(np.add.reduceat(st.a[idx], start, axis=0) / cnt)
-        self.wall += time.perf_counter() - c0
-        self.calls += 1
-        return 1
-
-    def records(self):
-        """``(t (K,), v (K, R, 2), a (K, R, 2))`` of the receivers."""
-        a = self.arrays()
-        return a["rec_t"], a["rec_v"], a["rec_a"]
-
-
 # ============================================================================ the column
-def run_column(medium: dict, height: float, pulse: Pulse, *, width_elements: int = 8,
-               dt=None, dt_fraction: float = 0.05, backend=None, record_every: int = 1,
-               duration=None) -> dict:
-    """The flat reference: a column ``width_elements`` wide and ``height`` tall of the lattice
-    ``medium``, roller sides, the LK base with the input ``pulse``; run until the wave has come
+def column_state(cfg, model, width_elements: int = 8):
+    """The flat reference column of a 2-D ``scene`` ``model``: the same scene (lattice, rock,
+    origin, half masses) over a box ``width_elements - 1/2`` spacings wide and as tall as the
+    model's domain, without regions and groups. Returns its built state."""
+    from geodem.workflow.scene import SceneBox, Shape
+
+    lo, hi = model._bounds()
+    box = SceneBox(min=[0.0, 0.0], max=[(width_elements - 0.5) * model.d,
+                                        float(hi[-1] - lo[-1])])
+    col = model.model_copy(update={"domain": Shape(box=box), "regions": [], "groups": {},
+                                   "interfaces": "bonded"})
+    return col.build(cfg).state
+
+
+def run_column(st, medium: dict, pulse: Pulse, *, dt=None, dt_fraction: float = 0.05,
+               backend=None, record_every: int = 1, duration=None) -> dict:
+    """Run the flat reference column ``st`` (:func:`column_state`) of the lattice ``medium``:
+    roller sides, the Lysmer-Kuhlemeyer base with the input ``pulse``, until the wave has come
     back up from the base after the surface round trip. Returns the records of its receivers
     (the centre column's elements of even rows, bottom to top; the last is the surface) and
     the measurements of :func:`measure_column`."""
     from geodem.core.engine import Simulation
 
     d = medium["d"]
-    st, info = build_section(medium, (width_elements - 0.5) * d, height)
-    sets = boundary_sets(st.x, d)
+    sets = face_sets(st.x, d)
     xc = st.x[sets["base"], 0][len(sets["base"]) // 2]
     line = np.flatnonzero(np.abs(st.x[:, 0] - xc) < 0.25 * d)
     line = line[np.argsort(st.x[line, 1])]
-    st.free[np.concatenate([sets["left"], sets["right"]]), 0] = 0.0
+    st.free[sets["side"], sets["side_axis"]] = 0.0
+    z_base, z_top = float(st.x_ref[:, 1].min()), float(st.x_ref[:, 1].max())
     sim = Simulation(st, backend=backend, dt=dt, dt_fraction=dt_fraction, monitor_every=0)
-    field = SeismicBoundary(medium["rho"], medium["cp"], medium["cs"], medium["nu"],
-                            medium["thickness"], d, info["y_base"], info["y_top"],
-                            pulse.config(), sides="roller", record_every=record_every)
-    field.set_sets(sets["base"], sets["left"], sets["right"], line, st)
+    field = WaveBoundary(medium["rho"], medium["cp"], medium["cs"], medium["k0"],
+                         medium["pitch"], medium["thickness"], z_base, z_top, pulse.config(),
+                         sides="roller", record_every=record_every)
+    field.set_sets(sets, line, st)
     sim.add_field(field)
-    H = info["y_top"] - info["y_base"]
+    H = z_top - z_base
     if duration is None:
         duration = pulse.t_c + 2.5 * H / medium["cp"] + 1.5 * pulse.half
     nsteps = int(math.ceil(duration / sim.state.dt))
     sim.run(nsteps)
     t, v, a_raw = field.records()
     a = lowpass(a_raw, t, LOWPASS * pulse.f)
-    y = st.x_ref[line, 1] - info["y_base"]
+    y = st.x_ref[line, 1] - z_base
     out = measure_column(t, y, v, a, H, medium["cp"], pulse)
     out.update({"t": t, "y": y, "v": v, "a": a, "height": H, "elements": int(st.n),
                 "steps": nsteps, "dt": sim.state.dt,
@@ -480,7 +148,7 @@ def _window(t, centre, half):
     return (t >= centre - half) & (t <= centre + half)
 
 
-def measure_column(t, y, v, a, H, cp, pulse: Pulse) -> dict:
+def measure_column(t, y, v, a, H, cp, pulse) -> dict:
     """Wave speed, free-surface amplification and base reflection of a flat column's records
     (``t (K,)``, receiver heights ``y (R,)`` above the base row, ``v``, ``a`` ``(K, R, 2)``;
     the last receiver is the surface). Definitions in the module docstring."""
@@ -527,280 +195,98 @@ def measure_column(t, y, v, a, H, cp, pulse: Pulse) -> dict:
             "reflection_receivers": int(len(refl))}
 
 
-# ============================================================================ model
-@register_model("valley_section")
-class ValleySection(ModelBase):
-    """A 2-D section of bonded rock (regular triangular lattice, the elastic medium E, nu, rho)
-    cut by a V-shaped valley; groups ``base``, ``sides``, ``surface`` (the ground line) and
-    ``rock``. ``valley_depth: 0`` gives a flat section."""
-
-    size_field = "scale"
-    example = {"type": "valley_section", "width": 60.0, "height": 50.0, "valley_width": 24.0,
-               "valley_depth": 10.0, "d": 2.0}
-    dim: Literal[2] = F(2, description="Dimension (2-D sections only)")
-    width: float = F(600.0, unit="m", gt=0, description="Width of the section")
-    height: float = F(200.0, unit="m", gt=0, description="Height of the section (base to the "
-                                                         "flat ground)")
-    valley_width: float = F(240.0, unit="m", ge=0, description="Width of the V valley at the "
-                                                               "ground line")
-    valley_depth: float = F(80.0, unit="m", ge=0, description="Depth of the V valley (0: flat "
-                                                              "ground)")
-    valley_x: Optional[float] = F(None, unit="m", description="x of the valley axis (default: "
-                                                              "the middle)")
-    d: float = F(2.5, unit="m", gt=0, description="Element diameter (lattice spacing) at scale "
-                                                  "1")
-    scale: float = F(1.0, gt=0, le=20, description="Resolution knob: the spacing is d / scale "
-                                                   "(elements ~ scale^2; the pulse and the "
-                                                   "geometry stay)")
-    material: Optional[Name] = F(None, description="A library or rock-property material whose "
-                                                   "E, nu, rho are used (default: the E, nu, "
-                                                   "rho below)")
-    E: float = F(60.0e9, unit="Pa", gt=0, description="Young's modulus of the rock (2-D medium)")
-    nu: float = F(0.25, gt=-1, le=1.0 / 3.0, description="Poisson's ratio of the rock; the "
-                                                          "triangular lattice reaches -1 < nu "
-                                                          "<= 1/3")
-    rho: float = F(2650.0, unit="kg/m^3", gt=0, description="Density of the rock")
-
-    def spacing(self) -> float:
-        return self.d / self.scale
-
-    def n_elements(self):
-        d = self.spacing()
-        area = self.width * self.height - 0.5 * self.valley_width * self.valley_depth
-        return max(1, int(area / (0.5 * SQRT3 * d * d)))
-
-    def bytes_per_element(self):
-        return state_bytes_per_element(2, 8) + 1500
-
-    def material_refs(self):
-        return [(("material",), self.material)] if self.material is not None else []
-
-    def group_names(self):
-        return ["all", "rock", "surface", "sides", "base"]
-
-    def n_across(self):
-        return float(self.height / (0.5 * SQRT3 * self.spacing()))
-
-    def check(self, cfg):
-        out = []
-        d = self.spacing()
-        for key in ("width", "height"):
-            if getattr(self, key) < 10 * d:
-                out.append(((key,), f"{key} = {getattr(self, key):g} m is less than 10 element "
-                                    f"spacings ({10 * d:g} m); allowed: >= 10 d / scale"))
-        xc = 0.5 * self.width if self.valley_x is None else self.valley_x
-        if self.valley_depth > 0:
-            if self.valley_width <= 0:
-                out.append((("valley_width",), "a valley (valley_depth > 0) needs "
-                                               "valley_width > 0"))
-            if xc - 0.5 * self.valley_width < 2 * d or xc + 0.5 * self.valley_width > \
-                    self.width - 2 * d:
-                out.append((("valley_width",), f"the valley ({xc - 0.5 * self.valley_width:g} "
-                                               f"to {xc + 0.5 * self.valley_width:g} m) must "
-                                               f"lie inside the section (2 d from its sides, "
-                                               f"0 to {self.width:g} m)"))
-            if self.valley_depth > self.height - 10 * d:
-                out.append((("valley_depth",), f"valley_depth = {self.valley_depth:g} m leaves "
-                                               f"less than 10 d of rock below the valley; "
-                                               f"allowed: <= height - 10 d = "
-                                               f"{self.height - 10 * d:g} m"))
-        if self.material is not None and self.material in cfg.materials:
-            try:
-                self.rock(cfg)
-            except BuildError as exc:
-                out.append((exc.path, str(exc)))
-        return out
-
-    def rock(self, cfg) -> tuple[float, float, float, str]:
-        """``(E, nu, rho, source)`` of the rock."""
-        if self.material is None:
-            return self.E, self.nu, self.rho, "model E, nu, rho"
-        from geodem.workflow.schema import LibraryMaterial, MacroMaterial
-
-        m = cfg.materials[self.material]
-        if isinstance(m, LibraryMaterial):
-            from geodem.materials_library import load_material
-
-            try:
-                v = load_material(m.library).values()
-            except Exception as exc:  # noqa: BLE001 - reported as a build error
-                raise BuildError(("material",), f"library material {m.library!r} not "
-                                                f"readable: {exc}") from None
-            E, nu, rho, src = v["E"], v["nu"], v["rho"], f"library {m.library!r} (laboratory)"
-        elif isinstance(m, MacroMaterial):
-            E, nu, rho, src = m.E, m.nu, m.rho, f"material {self.material!r}"
-        else:
-            raise BuildError(("material",), f"material {self.material!r} gives element "
-                                            f"parameters; valley_section needs rock "
-                                            f"properties (a library material or E, nu, ...)")
-        if not -1.0 < nu <= 1.0 / 3.0:
-            raise BuildError(("material",), f"material {self.material!r} has nu = {nu:g}; "
-                                            f"the triangular lattice reaches -1 < nu <= 1/3")
-        return float(E), float(nu), float(rho), src
-
-    def build(self, cfg):
-        E, nu, rho, src = self.rock(cfg)
-        med = lattice_medium(E, nu, rho, self.spacing())
-        st, info = build_section(med, self.width, self.height,
-                                 self.valley_width if self.valley_depth > 0 else 0.0,
-                                 self.valley_depth, self.valley_x)
-        info.update({"rock_source": src, "d_base": self.d, "scale": self.scale,
-                     "medium": {**info["medium"], "d": med["d"], "thickness": med["thickness"]}})
-        return BuiltModel(st, st.x.copy(), self.n_across(), info)
-
-
 # ============================================================================ step
-@register_step("seismic_wave")
-class SeismicWave(StepBase):
-    """A vertically propagating P pulse (Ricker or Hann-windowed sine) injected at the base of a
-    ``valley_section`` through a Lysmer-Kuhlemeyer viscous boundary (base and sides absorb),
-    after a flat reference column of the same rock measured the P-wave speed, the free-surface
-    amplification and the base reflection. Adds amplification_max, amplification_location_m,
-    p_wave_speed_rel_error, free_surface_amplification and boundary_reflection to summary.json;
-    writes seismic_receivers.npz, seismic_amplification.csv, seismic_snapshots.png,
-    seismic_surface.png, seismic_reference.png, seismic_animation.gif and seismic_vtk/."""
+@register_step("valley_amplification")
+class ValleyAmplification(StepBase):
+    """The seismic valley's results from a ``wave_source`` step's ground-line records: a flat
+    reference column of the same scene measures the P-wave speed, the free-surface
+    amplification and the base reflection, then the amplification along the ground (module
+    docstring). Adds amplification_max, amplification_location_m, p_wave_speed_rel_error,
+    free_surface_amplification, boundary_reflection and amplification_flat_ground to
+    summary.json; writes seismic_receivers.npz, seismic_amplification.csv,
+    seismic_snapshots.png, seismic_surface.png, seismic_reference.png and
+    seismic_animation.gif."""
 
-    example = {"kind": "seismic_wave", "duration": 0.02, "wavelength_elements": 8,
-               "gif": False, "snapshots": 2, "vtk_frames": 1}
-    example_model = ValleySection.example
-    pulse: Literal["ricker", "sine"] = F("ricker", description="Incident particle-velocity "
-                                                               "pulse")
-    frequency: Optional[float] = F(None, unit="Hz", gt=0,
-                                   description="Ricker peak / sine frequency (default: the P "
-                                               "wavelength is wavelength_elements x the model's "
-                                               "d at scale 1)")
-    wavelength_elements: float = F(20.0, ge=4, le=1000,
-                                   description="Default frequency: c_p / (this x d)")
-    cycles: float = F(2.0, gt=0, le=20, description="Sine cycles under the Hann window")
-    amplitude: float = F(0.01, unit="m/s", gt=0, description="Peak particle velocity of the "
-                                                             "incident wave")
-    duration: float = F(..., unit="s", gt=0, description="Simulated time of the section run "
-                                                         "(at least the pulse plus the "
-                                                         "crossing of the section)")
-    sides: Literal["free_field", "absorbing", "roller"] = F(
-        "free_field", description="Side boundaries: dashpots against the flat free field "
-                                  "(free_field), plain dashpots (absorbing) or horizontally "
-                                  "fixed (roller)")
-    record_every: Int = F(2, ge=1, le=1000, description="Receiver sampling interval [steps]")
-    reference: bool = F(True, description="Run the flat reference column first (wave speed, "
+    example = {"kind": "valley_amplification", "reference": False, "gif": False,
+               "snapshots": 2}
+    example_model = WaveSource.example_model
+    #: the steps its example needs before it (the contract test puts them first)
+    example_before: ClassVar[list] = [dict(WaveSource.example, frames=2)]
+    wave: Optional[Name] = F(None, description="The wave_source step whose records are used "
+                                               "(default: the last one before this step)")
+    valley_x: Optional[float] = F(None, unit="m", description="x of the valley axis (default: "
+                                                              "the middle of the section)")
+    valley_width: float = F(0.0, unit="m", ge=0, description="Width of the valley at the "
+                                                             "ground line (0: flat ground)")
+    reference: bool = F(True, description="Run the flat reference column (wave speed, "
                                           "free-surface amplification, base reflection and the "
                                           "flat-ground peak acceleration)")
     reference_width: Int = F(8, ge=3, le=200, description="Width of the reference column "
                                                           "[elements]")
     snapshots: Int = F(6, ge=1, le=12, description="Particle-speed maps in "
                                                    "seismic_snapshots.png")
-    vtk_frames: Int = F(6, ge=0, le=100, description="Frames written to seismic_vtk/ (.vtp)")
-    gif: bool = F(True, description="Write seismic_animation.gif")
-    gif_frames: Int = F(40, ge=2, le=300, description="Frames of the animation")
+    gif: bool = F(True, description="Write seismic_animation.gif (from the wave step's frames)")
     edge_exclusion: float = F(1.5, ge=0, le=10,
                               description="amplification_max is searched on the ground more "
                                           "than this many P wavelengths from the sides")
     plot: bool = F(True, description="Draw the pictures (needs matplotlib)")
 
+    def _wave_step(self, cfg):
+        k = next((i for i, s in enumerate(cfg.steps) if s is self), len(cfg.steps))
+        waves = [s for s in cfg.steps[:k] if s.kind == "wave_source"]
+        if self.wave is not None:
+            waves = [s for s in waves if s.name == self.wave]
+        return waves[-1] if waves else None
+
     def check(self, cfg, groups):
-        out = needs_model(cfg, "valley_section",
-                          "seismic_wave needs the rock section: use model type valley_section")
-        if out:
-            return out
-        m = cfg.model
-        try:
-            E, nu, rho, _ = m.rock(cfg) if (m.material is None or m.material in
-                                            cfg.materials) else (m.E, m.nu, m.rho, "")
-        except BuildError:
-            return out
-        cp = math.sqrt(E / ((1 - nu * nu) * rho))
-        pulse = self.make_pulse(cp, m.d)
-        need = pulse.duration + m.height / cp
-        if self.duration < need:
-            out.append((("duration",), f"duration = {self.duration:g} s ends before the pulse "
-                                       f"({pulse.duration:.4g} s) has crossed the section "
-                                       f"({m.height:g} m at c_p = {cp:.0f} m/s); allowed: "
-                                       f">= {need:.4g} s (2 crossings recommended: "
-                                       f"{pulse.duration + 2 * m.height / cp:.4g} s)"))
+        out = []
+        if cfg.model.dim != 2:
+            out.append((("kind",), "valley_amplification reads a 2-D section's ground line"))
+        w = self._wave_step(cfg)
+        if w is None:
+            out.append((("wave",) if self.wave else ("kind",),
+                        f"no wave_source step{' named ' + repr(self.wave) if self.wave else ''}"
+                        f" before this step; add one (with receivers: the ground line)"))
+        elif w.receivers is None:
+            out.append((("wave",), f"the wave_source step {w.name!r} records no receivers; give "
+                                   f"it receivers: a surface group (e.g. {{surface: ymax}})"))
         return out
 
-    def make_pulse(self, cp: float, d_base: float) -> Pulse:
-        f = self.frequency if self.frequency is not None else \
-            cp / (self.wavelength_elements * d_base)
-        return Pulse(self.pulse, f, self.amplitude, self.cycles)
-
     def planned_steps(self, plan):
-        return max(1, int(math.ceil(self.duration / plan.dt - 1e-9)))
+        return 0
 
-    # ------------------------------------------------------------------ execution
     def execute(self, ctx):
-        from geodem.io.vtk import VtkWriter
-
+        field = wave_field(ctx.sim)
+        if field is None:
+            raise ValueError(f"step {self.name!r}: no wave boundary is attached (run a "
+                             f"wave_source step first)")
+        wave = self._wave_step(ctx.cfg)
         info = ctx.model.info
         med = info["medium"]
-        d = float(info["diameter"])
-        pulse = self.make_pulse(med["cp"], float(info["d_base"]))
-        total = self.planned_steps(ctx.plan)
-        H = info["y_top"] - info["y_base"]
-        # ------------------------------------------------------------ flat reference
+        pulse = Pulse(**field.pulse_cfg)
         ref, ref_note = None, None
         if self.reference:
             t0 = time.perf_counter()
             try:
-                ref = run_column(med, info["height"], pulse, width_elements=self.reference_width,
-                                 dt=ctx.state.dt, backend=ctx.runner.prep.backend,
-                                 record_every=self.record_every)
+                st = column_state(ctx.cfg, ctx.cfg.model, self.reference_width)
+                ref = run_column(st, med, pulse, dt=ctx.state.dt,
+                                 backend=ctx.runner.prep.backend,
+                                 record_every=field.record_every)
                 ref["wall_s"] = time.perf_counter() - t0
             except ValueError as exc:
                 ref_note = f"reference column not measured: {exc}"
                 ctx.log(ref_note)
-        # ------------------------------------------------------------ the section
-        sim = ctx.sim
-        field = next((f for f in sim.fields if f.kind == "seismic_boundary"), None)
-        ref_x = ctx.model.reference
-        if field is None:
-            sets = boundary_sets(ref_x, d)
-            st = ctx.state
-            if self.sides == "roller":
-                side = np.concatenate([sets["left"], sets["right"]])
+        return self._results(ctx, field, ref, ref_note, pulse, float(info["d"]),
+                             ctx.out_dir / f"{wave.name}_frames")
 
-                def roll(s):
-                    s.free[side, 0] = 0.0
-                    s.v[side, 0] = 0.0
-
-                ctx.decree(roll, "sides")
-            ctx.set_eta(0.0)
-            field = SeismicBoundary(med["rho"], med["cp"], med["cs"], med["nu"],
-                                    med["thickness"], d, info["y_base"], info["y_top"],
-                                    pulse.config(), sides=self.sides,
-                                    record_every=self.record_every, t_start=st.time)
-            field.set_sets(sets["base"], sets["left"], sets["right"], sets["surface"], st)
-            sim.add_field(field)
-        n_frames = max(self.gif_frames if self.gif else 0, self.snapshots, self.vtk_frames, 1)
-        chunk = max(1, total // n_frames)
-        n_last = int(math.ceil(total / chunk))
-        vtk_at = set(np.unique(np.linspace(1, n_last, self.vtk_frames).round().astype(int))
-                     .tolist()) if self.vtk_frames else set()
-        fdir = ctx.out_dir / FRAMES_DIR
-        fdir.mkdir(exist_ok=True)
-        vtk = VtkWriter(ctx.out_dir / VTK_DIR, "seismic.pvd") if vtk_at else None
-        done = ctx.state.step - ctx.start_step
-        t_wall = time.perf_counter()
-        while done < total:
-            done = min(total, (done // chunk + 1) * chunk)
-            ctx.advance(done)
-            s = ctx.state
-            k = int(math.ceil(done / chunk))
-            np.savez_compressed(fdir / f"frame_{k:05d}.npz", x=s.x.astype(np.float32),
-                                speed=np.linalg.norm(s.v, axis=1).astype(np.float32),
-                                time=s.time - field.t_start)
-            if vtk is not None and k in vtk_at:
-                vtk.write(s, s.step, ref_x)
-        wall = time.perf_counter() - t_wall
-        return self._results(ctx, field, ref, ref_note, pulse, H, d, fdir, wall)
-
-    def _results(self, ctx, field, ref, ref_note, pulse, H, d, fdir, wall):
-        info = ctx.model.info
-        med = info["medium"]
+    def _results(self, ctx, field, ref, ref_note, pulse, d, fdir):
+        med = ctx.model.info["medium"]
         t, v, a_raw = field.records()
         a = lowpass(a_raw, t, LOWPASS * pulse.f)
         rec = field.sets["receivers"]
-        xr = ctx.model.reference[rec]
+        ref_x = ctx.model.reference
+        x_min, x_max = float(ref_x[:, 0].min()), float(ref_x[:, 0].max())
+        xr = ref_x[rec]
         peak_a = np.linalg.norm(a, axis=2).max(axis=0) if len(t) else np.zeros(len(rec))
         peak_v = np.linalg.norm(v, axis=2).max(axis=0) if len(t) else np.zeros(len(rec))
         if ref is not None:
@@ -813,13 +299,14 @@ class SeismicWave(StepBase):
         amp_raw = peak_a / a_flat
         amp = ground_smooth(xr, amp_raw, SMOOTH * lam)
         edge = self.edge_exclusion * lam
-        inner = (xr[:, 0] >= info["x_min"] + edge) & (xr[:, 0] <= info["x_max"] - edge)
+        inner = (xr[:, 0] >= x_min + edge) & (xr[:, 0] <= x_max - edge)
         if not inner.any():
             inner[:] = True
         k = int(np.flatnonzero(inner)[np.argmax(amp[inner])])
-        xc, hw = info["valley_x"], 0.5 * info["valley_width"]
-        far = (np.abs(xr[:, 0] - xc) > hw + lam) & (xr[:, 0] > info["x_min"] + lam) & \
-            (xr[:, 0] < info["x_max"] - lam)
+        xc = 0.5 * (x_min + x_max) if self.valley_x is None else float(self.valley_x)
+        hw = 0.5 * self.valley_width
+        far = (np.abs(xr[:, 0] - xc) > hw + lam) & (xr[:, 0] > x_min + lam) & \
+            (xr[:, 0] < x_max - lam)
         with open(ctx.out_dir / AMPLIFICATION_CSV, "w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(("x", "y", "peak_acceleration", "peak_velocity", "amplification_receiver",
@@ -846,8 +333,6 @@ class SeismicWave(StepBase):
             "flat_peak_acceleration": float(a_flat), "flat_peak_acceleration_source": flat_src,
             "p_wave_speed_analytic": med["cp"], "s_wave_speed_analytic": med["cs"],
             "pulse": pulse.config(), "wavelength_m": lam, "receivers": int(len(rec)),
-            "section_wall_s": wall, "boundary_field_wall_s": field.wall,
-            "boundary_field_us_per_step": 1e6 * field.wall / max(field.calls, 1),
         }
         for key in ref_keys:
             res[key] = ref[key] if ref is not None else None
@@ -862,18 +347,18 @@ class SeismicWave(StepBase):
         def fmt(v, f=".3g"):
             return "n/a" if v is None else format(v, f)
 
-        ctx.log(f"seismic wave: amplification max {amp[k]:.3g} at x = {xr[k, 0]:.1f} m "
+        ctx.log(f"seismic valley: amplification max {amp[k]:.3g} at x = {xr[k, 0]:.1f} m "
                 f"(flat ground {fmt(res['amplification_flat_ground'])}); reference: c_p error "
                 f"{fmt(res['p_wave_speed_rel_error'])}, free-surface amplification "
                 f"{fmt(res['free_surface_amplification'])}, base reflection "
                 f"{fmt(res['boundary_reflection'])}")
         if self.plot and ctx.cfg.outputs.plots:
             frames = sorted(fdir.glob("frame_*.npz"))
-            vmax = 2.0 * self.amplitude
+            vmax = 2.0 * pulse.amp
             res["plot_snapshots"] = ctx.plot("seismic_snapshots.png", lambda p: plot_snapshots(
                 p, frames, self.snapshots, d, vmax))
             res["plot_surface"] = ctx.plot("seismic_surface.png", lambda p: plot_surface(
-                p, t, a, xr, amp, info, amp_raw))
+                p, t, a, xr, amp, amp_raw))
             if ref is not None:
                 res["plot_reference"] = ctx.plot("seismic_reference.png",
                                                  lambda p: plot_reference(p, ref, pulse))
@@ -935,7 +420,7 @@ def plot_snapshots(path, frames, n, d, vmax):
     return path
 
 
-def plot_surface(path, t, a, xr, amp, info, amp_raw=None):
+def plot_surface(path, t, a, xr, amp, amp_raw=None):
     """Ground-line record (|a| against x and time) and the amplification along the ground."""
     plt = pyplot()
     if plt is None:
@@ -1011,6 +496,5 @@ def write_gif(path, frames, d, vmax):
                       lambda ax, f: _speed_map(ax, np.load(f), d, vmax), fps=8)
 
 
-__all__ = ["ValleySection", "SeismicWave", "SeismicBoundary", "Pulse", "lattice_medium",
-           "lattice_E_nu", "section_points", "boundary_sets", "build_section", "run_column",
-           "measure_column"]
+__all__ = ["ValleyAmplification", "column_state", "run_column", "measure_column", "lowpass",
+           "ground_smooth"]

@@ -182,3 +182,53 @@ def box_size_problems(size, dim: int, d_mean: float) -> list:
     return []
 
 
+
+
+# ============================================================================ elastic lattice
+def rock_properties(cfg, name: str, path=("material",), d=None,
+                    dim=None) -> tuple[float, float, float, str]:
+    """``(E, nu, rho, source)`` of material ``name``: a library rock's laboratory values, a
+    rock-property material's, or the medium that element parameters (kn, ks) make on the
+    close-packed lattice of spacing ``d`` in ``dim`` (the lattice's E, nu); others are refused
+    (BuildError at ``path``)."""
+    from geodem.workflow.schema import LibraryMaterial, MicroMaterial
+
+    m = cfg.materials[name]
+    if isinstance(m, LibraryMaterial):
+        from geodem.materials_library import load_material
+
+        try:
+            v = load_material(m.library).values()
+        except Exception as exc:  # noqa: BLE001 - reported as a build error
+            raise BuildError(path, f"library material {m.library!r} not readable: "
+                                   f"{exc}") from None
+        return float(v["E"]), float(v["nu"]), float(v["rho"]), \
+            f"library {m.library!r} (laboratory)"
+    if isinstance(m, MacroMaterial):
+        return float(m.E), float(m.nu), float(m.rho), f"material {name!r}"
+    if isinstance(m, MicroMaterial) and dim in (2, 3):
+        # element parameters on the lattice: the medium they make (their own E, nu)
+        from geodem.materials import lattice_E_nu, micro_to_macro
+
+        Kn, Ks = 0.5 * m.kn, 0.5 * m.ks
+        E, nu = lattice_E_nu(Kn, Ks, d) if dim == 2 else \
+            [micro_to_macro(Kn, Ks, 1.0, 1.0, 0.5, d)[k] for k in ("E", "nu")]
+        return float(E), float(nu), float(m.rho), f"element parameters of {name!r} (kn, ks)"
+    raise BuildError(path, f"material {name!r} gives per-size element parameters; elements: "
+                           f"elastic needs rock properties (a library material or E, nu, rho, "
+                           f"...) or element parameters (kn, ks)")
+
+
+def elastic_medium(cfg, name: str, d: float, dim: int, path=("material",)) -> dict:
+    """The elastic lattice medium (:func:`geodem.materials.elastic_lattice`) of material
+    ``name``'s rock properties at spacing ``d``, with ``source`` (where E, nu, rho came
+    from)."""
+    from geodem.materials import elastic_lattice
+
+    E, nu, rho, src = rock_properties(cfg, name, path, d, dim)
+    try:
+        med = elastic_lattice(E, nu, rho, d, dim)
+    except ValueError as exc:
+        raise BuildError(path, f"material {name!r}: {exc}") from None
+    med["source"] = src
+    return med

@@ -30,7 +30,7 @@ from pydantic import model_validator
 
 from geodem.workflow.models import (SIDES, BuildError, BuiltModel, element_params,
                                     group_problems, state_bytes_per_element)
-from geodem.workflow.schema import DOF_NAMES, F, ModelBase, Name, Strict, register_model
+from geodem.workflow.schema import DOF_NAMES, F, Int, ModelBase, Name, Strict, register_model
 
 
 class SceneBox(Strict):
@@ -223,11 +223,17 @@ class SceneGroup(Strict):
     box: Optional[SceneBox] = F(None, description="Box selecting element centres [m]")
     shape: Optional[Shape] = F(None, description="A shape selecting element centres (box, "
                                                  "polygon, disc, below, above, band)")
+    surface: Optional[Literal[SIDES]] = F(  # type: ignore[valid-type]
+        None, description="The outermost element seen from this side in every d-wide strip "
+                          "(2-D) or d x d column (3-D) across it: e.g. ymax, the ground line of "
+                          "a section with its valleys and slopes")
 
     @model_validator(mode="after")
     def _one(self):
-        if sum(v is not None for v in (self.side, self.region, self.box, self.shape)) != 1:
-            raise ValueError("give exactly one of side, region, box or shape")
+        if sum(v is not None for v in (self.side, self.region, self.box, self.shape,
+                                       self.surface)) != 1:
+            raise ValueError("give exactly one of side, region, box or shape (or surface: a "
+                             "side)")
         if isinstance(self.side, list) and not self.side:
             raise ValueError("side: give a side or a non-empty list of sides")
         return self
@@ -265,6 +271,25 @@ class Scene(ModelBase):
     distri_rate: float = F(0.2, ge=0, lt=1, description="Random and specimen fills: radius "
                                                         "spread (d_max / d_min = (1 + r) / "
                                                         "(1 - r))")
+    lattice_origin: Literal["inside", "corner"] = F(
+        "inside", description="Lattice fill: 'inside' (the first centre half an element inside "
+                              "the lower corner, whole elements inside the bounding box) or "
+                              "'corner' (the first centre on the lower corner, centres up to "
+                              "the upper faces: elements on the faces overhang by d/2)")
+    elements: Literal["calibrated", "elastic"] = F(
+        "calibrated", description="Element parameters: 'calibrated' (the material's element "
+                                  "parameters) or 'elastic' (lattice fill: the material's "
+                                  "rock properties E, nu, rho converted exactly onto the "
+                                  "close-packed lattice, or its kn, ks kept; element mass one "
+                                  "lattice cell, bonds "
+                                  "that never break: an elastic medium for waves)")
+    min_bonds: Int = F(0, ge=0, le=12, description="Lattice and random fills: elements left "
+                                                   "with fewer contacts than this after the "
+                                                   "cut are removed, again and again (0: none)")
+    half_mass: list[Literal[SIDES]] = F(  # type: ignore[valid-type]
+        [], description="Sides of the bounding box whose elements, centred on its face, own "
+                        "half a lattice cell: half the mass (a symmetry plane; with "
+                        "lattice_origin: corner)")
     material: Name = F(..., description="Material of elements in no region")
     regions: list[Region] = F([], description="Ordered regions; a later one overrides")
     interfaces: Literal["bonded", "joint"] = F(
@@ -303,9 +328,9 @@ class Scene(ModelBase):
 
     def _counts(self):
         """Lattice counts covering the bounding box with element centres from ``lo + d/2``
-        to ``hi - d/2``."""
+        to ``hi - d/2`` (``lattice_origin: corner``: from ``lo`` to ``hi``)."""
         lo, hi = self._bounds()
-        ext = np.maximum(hi - lo - self.d, 0.0)
+        ext = np.maximum(hi - lo - (self.d if self.lattice_origin == "inside" else 0.0), 0.0)
         spacing = [1.0, math.sqrt(3.0) / 2.0] + ([math.sqrt(2.0 / 3.0)] if self.dim == 3 else [])
         return [int(math.floor(e / (s * self.d) + 1e-9)) + 1 for e, s in zip(ext, spacing)]
 
@@ -395,6 +420,30 @@ class Scene(ModelBase):
                                                                   "a group's shape"))
             elif g.shape is not None:
                 out += g.shape.problems(self.dim, ("groups", name, "shape"))
+        for name, g in self.groups.items():
+            if g.surface is not None and DOF_NAMES.index(g.surface[0]) >= self.dim:
+                out.append((("groups", name, "surface"), f"side {g.surface!r} does not exist "
+                                                         f"in {self.dim}-D"))
+        for k, side in enumerate(self.half_mass):
+            if DOF_NAMES.index(side[0]) >= self.dim:
+                out.append((("half_mass", k), f"side {side!r} does not exist in {self.dim}-D"))
+        if self.fill != "lattice":
+            for key, default in (("lattice_origin", "inside"), ("elements", "calibrated"),
+                                 ("half_mass", [])):
+                if getattr(self, key) != default:
+                    out.append(((key,), f"{key} applies to fill: lattice (the close-packed "
+                                        f"lattice); allowed with fill: {self.fill}: "
+                                        f"{default!r}"))
+            if self.fill == "specimen" and self.min_bonds:
+                out.append((("min_bonds",), "a specimen fill removes the elements left with "
+                                            "fewer than 2 bonds itself; allowed: 0"))
+        elif self.elements == "elastic":
+            for name, mat, path in [(None, self.material, ("material",))] + self.slots():
+                if mat is not None and mat in cfg.materials:
+                    try:
+                        self.medium(cfg, mat, path)
+                    except BuildError as exc:
+                        out.append((exc.path, str(exc)))
         if self.fill == "specimen":
             out += self._specimen_problems(cfg)
         return out + group_problems(self.groups, self.dim)
@@ -454,13 +503,14 @@ class Scene(ModelBase):
         return []
 
     def build(self, cfg):
-        from geodem.build.lattice import fcc_lattice, triangular_lattice
+        from geodem.build.lattice import prune_loose
         from geodem.core.neighbors import spatial_sort
 
         d = self.d
         lo, hi = self._bounds()
         radius = 0.5 * d
-        info = {"d": d, "diameter": d}
+        info = {"d": d, "diameter": d, "domain_min": [float(v) for v in lo],
+                "domain_max": [float(v) for v in hi]}
         if self.fill == "specimen":
             st, region, more = self._specimen_fill(cfg, lo, hi)
             info.update(more)
@@ -470,20 +520,25 @@ class Scene(ModelBase):
             elif self.domain.terrain is not None:
                 x = np.array(self._terrain().x, float)  # local: (along the line, z) or (x, y, z)
             else:
-                c = self._counts()
-                x = fcc_lattice(*c, d) if self.dim == 3 else triangular_lattice(*c, d)
-                x = x + lo + 0.5 * d
-                tol = 1e-9 * d
-                # whole elements inside the bounding box; in a polygon, centres inside
-                x = x[self.domain.mask(x) & np.all(x <= hi - 0.5 * d + tol, axis=1)]
+                x = self._lattice(lo, hi)
             if len(x) == 0:
                 raise BuildError(("domain",), "the domain holds no element")
             region = self.region_ids(x)
             info["elements_removed"] = int((region < 0).sum())
-            x, region = x[region >= 0], region[region >= 0]  # empty regions: no element
+            keep = region >= 0  # empty regions: no element
+            if self.min_bonds:
+                r = np.broadcast_to(radius, (len(x),))
+                keep[keep] = prune_loose(x[keep], r[keep], self.min_bonds, gap=1e-6 * d)
+                info["loose_removed"] = int((region >= 0).sum() - keep.sum())
+            x, region = x[keep], region[keep]
+            if np.ndim(radius):
+                radius = radius[keep]
             if len(x) == 0:
                 raise BuildError(("regions",), "every element lies in an empty region")
             st = self._bond(cfg, x, radius, region)
+            if self.elements == "elastic":
+                info["medium"] = {k: v for k, v in self.medium(cfg).items() if k != "element"}
+            halve_side_masses(st, self.half_mass, d)
         slots = self.slots()
         if self.gravity is not None:
             st.gravity[:self.dim] = self.gravity
@@ -497,6 +552,30 @@ class Scene(ModelBase):
                                       if k == 0 or slots[k - 1][1] is not None}
         return BuiltModel(st, st.x.copy(), self.n_across(), info)
 
+    def _lattice(self, lo, hi):
+        """Centres of the close-packed lattice over the bounding box ``lo, hi``, cut by the
+        domain (``lattice_origin``: whole elements inside the box, or centres from the lower
+        corner up to the upper faces)."""
+        from geodem.build.lattice import fcc_lattice, triangular_lattice
+
+        d, c = self.d, self._counts()
+        x = fcc_lattice(*c, d) if self.dim == 3 else triangular_lattice(*c, d)
+        tol = 1e-9 * d
+        if self.lattice_origin == "corner":
+            x = x + lo
+            keep = np.all((x >= lo - tol) & (x <= hi + tol), axis=1)
+            return x[keep & (self.domain.mask(x) if self.domain.box is None else True)]
+        x = x + lo + 0.5 * d
+        # whole elements inside the bounding box; in a polygon, centres inside
+        return x[self.domain.mask(x) & np.all(x <= hi - 0.5 * d + tol, axis=1)]
+
+    def medium(self, cfg, name=None, path=("material",)) -> dict:
+        """The elastic lattice medium of a material (``elements: elastic``;
+        :func:`~geodem.workflow.material.elastic_medium`)."""
+        from geodem.workflow.material import elastic_medium
+
+        return elastic_medium(cfg, name or self.material, self.d, self.dim, path)
+
     def _bond(self, cfg, x, radius, region):
         """The bonded state of element centres ``x`` (radius ``radius``), each with its region's
         element parameters (:func:`~geodem.build.lattice.bonded_state`)."""
@@ -506,12 +585,18 @@ class Scene(ModelBase):
         slots = self.slots()
         mats = [self.material] + [m for _, m, _ in slots]
         paths = [("material",)] + [p for _, _, p in slots]
-        params = {k: element_params(cfg, name, d, self.dim, paths[k])
-                  for k, name in enumerate(mats) if name is not None}
+        if self.elements == "elastic":
+            params = {k: self.medium(cfg, name, paths[k])["element"]
+                      for k, name in enumerate(mats) if name is not None}
+        else:
+            params = {k: element_params(cfg, name, d, self.dim, paths[k])
+                      for k, name in enumerate(mats) if name is not None}
         per = {key: np.array([params[int(k)][key] for k in region], float)
                for key in ("kn", "ks", "xb", "fs0", "mu", "rho")}
+        thick = d if self.elements == "elastic" and self.dim == 2 else None
         st = bonded_state(x, radius, density=per["rho"], kn=per["kn"], ks=per["ks"],
-                          xb=per["xb"], fs0=per["fs0"], mu=per["mu"], gap=1e-6 * d)
+                          xb=per["xb"], fs0=per["fs0"], mu=per["mu"], gap=1e-6 * d,
+                          thickness=thick)
         for k in params:
             if params[k]["mass"] is not None:
                 st.m[region == k] = params[k]["mass"]
@@ -622,6 +707,8 @@ class Scene(ModelBase):
                 sel = region == names[g.region]
             elif g.shape is not None:
                 sel = g.shape.mask(st.x)
+            elif g.surface is not None:
+                sel = surface_elements(st.x, self.d, g.surface)
             else:
                 sel = np.all((st.x >= np.asarray(g.box.min)) & (st.x <= np.asarray(g.box.max)),
                              axis=1)
@@ -660,6 +747,35 @@ def _terrain_lattice(key):
     return terrain_model(_read_top(path, mtime), d, base_depth=base_depth, dim=dim,
                          body="ground", line=None if line is None else [list(p) for p in line],
                          extent=extent)
+
+
+def surface_elements(x, d, side) -> np.ndarray:
+    """Indices of the outermost element seen from ``side`` (xmin, ..., zmax) in every d-wide
+    strip (2-D) or d x d column (3-D) across it (strips counted from the lowest centre)."""
+    x = np.asarray(x, float)
+    ax = DOF_NAMES.index(side[0])
+    other = [k for k in range(x.shape[1]) if k != ax]
+    cell = np.floor((x[:, other] - x[:, other].min(axis=0)) / d + 1e-6).astype(np.int64)
+    key = cell[:, 0]
+    for k in range(1, cell.shape[1]):
+        key = key * (int(cell[:, k].max()) + 1) + cell[:, k]
+    height = x[:, ax] if side.endswith("max") else -x[:, ax]
+    order = np.lexsort((height, key))  # by strip, then height: the last of each is outermost
+    s = key[order]
+    last = np.r_[s[1:] != s[:-1], True]
+    return np.sort(order[last])
+
+
+def halve_side_masses(state, sides, d) -> None:
+    """Halve the mass of the elements centred on the faces ``sides`` of the bounding box of the
+    element centres (within 10^-6 d): they own half a lattice cell."""
+    lo, hi = state.x.min(axis=0), state.x.max(axis=0)
+    tol = 1e-6 * d
+    on = np.zeros(state.n, bool)
+    for side in sides:
+        ax = DOF_NAMES.index(side[0])
+        on |= np.abs(state.x[:, ax] - (lo[ax] if side.endswith("min") else hi[ax])) < tol
+    state.m[on] *= 0.5
 
 
 def cut_interfaces(state, region) -> int:

@@ -8,10 +8,29 @@ import pytest
 import yaml
 
 from geodem.workflow import run_workflow
-from geodem.cases.seismic import Pulse, lattice_medium, run_column
+from geodem.cases.seismic import column_state, run_column
+from geodem.fields.wave import Pulse
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
 ROOT = Path(__file__).resolve().parents[2]
+
+
+def _column(d, height, width_elements):
+    """The workflow's scene (granite, elastic lattice from the corner) as a flat column."""
+    import tempfile
+
+    from geodem.workflow.schema import validate_document
+    from geodem.workflow.yamlio import load_document
+
+    wf = yaml.safe_load(open(ROOT / "workflows" / "seismic_valley.yaml"))
+    wf["model"].update({"d": d, "regions": [], "groups": {},
+                        "domain": {"box": {"min": [0.0, 0.0], "max": [40 * d, height]}}})
+    wf["steps"] = [{"kind": "run", "nsteps": 1}]
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "col.yaml"
+        path.write_text(yaml.safe_dump(wf))
+        cfg = validate_document(load_document(path))
+    return column_state(cfg, cfg.model, width_elements), cfg.model.medium(cfg)
 
 
 def test_flat_column_p_wave_speed_free_surface_and_absorbing_base():
@@ -19,9 +38,10 @@ def test_flat_column_p_wave_speed_free_surface_and_absorbing_base():
     arrival-time slope gives c_p = sqrt(E / ((1 - nu^2) rho)) within 3 %, the surface doubles
     the incident acceleration (1.85-2.15), the viscous base reflects less than 10 %."""
     d = 2.5
-    med = lattice_medium(60e9, 0.25, 2650.0, d)
+    st, med = _column(d, 80 * d, 6)
+    assert (med["E"], med["nu"], med["rho"]) == (60e9, 0.25, 2650.0)  # granite, laboratory
     pulse = Pulse("ricker", med["cp"] / (20 * d), 0.01)
-    r = run_column(med, 80 * d, pulse, width_elements=6, dt_fraction=0.05)
+    r = run_column(st, med, pulse, dt_fraction=0.05)
     assert r["arrival_receivers"] >= 8 and r["reflection_receivers"] >= 8
     assert r["p_wave_speed_rel_error"] <= 0.03
     assert 1.85 <= r["free_surface_amplification"] <= 2.15
@@ -34,18 +54,20 @@ def test_flat_column_p_wave_speed_free_surface_and_absorbing_base():
 
 def test_column_too_short_for_the_pulse_is_refused():
     d = 2.5
-    med = lattice_medium(60e9, 0.25, 2650.0, d)
+    st, med = _column(d, 20 * d, 4)
     pulse = Pulse("ricker", med["cp"] / (20 * d), 0.01)
     with pytest.raises(ValueError, match="too short"):
-        run_column(med, 20 * d, pulse, width_elements=4, dt_fraction=0.05)
+        run_column(st, med, pulse, dt_fraction=0.05)
 
 
 def test_valley_workflow_small(tmp_path):
     wf = yaml.safe_load(open(ROOT / "workflows" / "seismic_valley.yaml"))
-    wf["model"].update({"width": 150.0, "height": 100.0, "valley_width": 60.0,
-                        "valley_depth": 20.0, "d": 2.5})
-    wf["steps"][0].update({"duration": 0.05, "wavelength_elements": 12, "gif_frames": 6,
-                           "snapshots": 2, "vtk_frames": 2})
+    # 150 x 100 m, a V 60 m wide and 20 m deep on the axis x = 75 m
+    wf["model"].update({"d": 2.5, "domain": {"box": {"min": [0.0, 0.0], "max": [150.0, 100.0]}},
+                        "regions": [{"name": "valley", "empty": True, "shape": {"polygon": [
+                            [37.5, 105.0], [112.5, 105.0], [75.0, 80.0]]}}]})
+    wf["steps"][0].update({"duration": 0.05, "wavelength": 30.0, "frames": 6, "vtk_frames": 2})
+    wf["steps"][1].update({"valley_x": 75.0, "valley_width": 60.0, "snapshots": 2})
     p = tmp_path / "wf.yaml"
     p.write_text(yaml.safe_dump(wf))
     code, s = run_workflow(p, tmp_path / "out", echo=False, progress=False)

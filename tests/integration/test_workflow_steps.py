@@ -32,6 +32,7 @@ def example_workflow(tmp_path, kind):
     closure error of a model at rest is round-off / round-off)."""
     cls = STEPS[kind]
     pre = [] if cls.example_model else [{"kind": "load", "group": "top", "force": [0.0, -1.0]}]
+    pre += list(getattr(cls, "example_before", []))  # steps the example needs before it
     return workflow(tmp_path, pre + [{"kind": "run", "nsteps": 10}, dict(cls.example),
                                      {"kind": "run", "nsteps": 10}], model=cls.example_model)
 

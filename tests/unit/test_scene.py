@@ -346,3 +346,74 @@ def test_groups_by_shape_and_by_a_list_of_sides_last_one_wins():
     assert 0 < int((on_edge & in_ring).sum()) == 158 - len(edge)   # the disc won those
     assert rock == set(np.flatnonzero(~on_edge & ~in_ring).tolist())
     assert len(heater) + len(edge) + len(rock) == st.n
+
+
+# ------------------------------------------------------------------ lattice origin, elastic
+def _small(**model):
+    """0.1 x 0.05 m, d = 0.02, lattice from the corner: rows at y = 0, 0.0173, 0.0346 (3);
+    even rows x = 0 ... 0.1 (6), the odd row x = 0.01 ... 0.09 (5; 0.11 is outside)."""
+    return _build(domain={"box": {"min": [0.0, 0.0], "max": [0.1, 0.05]}},
+                  lattice_origin="corner", **model)
+
+
+def test_a_lattice_from_the_corner_counted_by_hand():
+    b = _small(half_mass=["xmin", "xmax"])
+    st = b.state
+    assert st.n == 6 + 5 + 6
+    x = np.round(st.x / 0.01, 6)
+    assert x[:, 0].min() == 0.0 and x[:, 0].max() == 10.0 and x[:, 1].min() == 0.0
+    assert np.unique(x[:, 1]).tolist() == pytest.approx([0.0, 1.732051, 3.464102])
+    # the four elements centred on x = 0 and x = 0.1 own half a cell
+    full = 2650 * np.pi * 0.01 ** 2 * 0.02
+    on = (x[:, 0] == 0.0) | (x[:, 0] == 10.0)
+    assert on.sum() == 4
+    assert st.m[on] == pytest.approx(0.5 * full) and st.m[~on] == pytest.approx(full)
+
+
+def test_min_bonds_removes_the_elements_left_loose():
+    # an empty box takes the odd row and the top row but its element at x = 0, which is left
+    # without a contact: min_bonds 1 removes it; the base row (6) stays
+    hole = [{"name": "cut", "empty": True,
+             "shape": {"box": {"min": [0.005, 0.01], "max": [0.2, 0.2]}}}]
+    assert _small(regions=hole).state.n == 7
+    b = _small(regions=hole, min_bonds=1)
+    assert b.state.n == 6 and b.info["loose_removed"] == 1
+    assert np.all(b.state.x[:, 1] == 0.0)
+
+
+def test_surface_groups_take_the_outermost_element_of_every_strip():
+    st = _small(groups={"left": {"surface": "xmin"}, "ground": {"surface": "ymax"}}).state
+    g = st.x[st.group_mask("ground")]
+    # 6 strips of d along x (x = 0 ... 0.1); the top row holds one element in each
+    assert len(g) == 6 and np.allclose(g[:, 1], 2 * 0.02 * np.sqrt(3) / 2)
+    left = st.x[st.group_mask("left")]
+    # along y, strips of d from y = 0: [0, 0.02) holds rows 0 and 1 (x = 0 and 0.01), [0.02,
+    # 0.04) row 2: (0, 0) and (0, 0.0346); the corner (0, 0.0346) went to the later group
+    assert left.tolist() == [[0.0, 0.0]]
+
+
+def test_elastic_elements_are_the_rock_on_the_lattice():
+    d = 0.02
+    cfg = _cfg(domain={"box": {"min": [0.0, 0.0], "max": [0.1, 0.05]}}, lattice_origin="corner",
+               elements="elastic", material="sand")
+    b = cfg.model.build(cfg)
+    from geodem.materials_library import load_material
+
+    v = load_material("sandstone").values()
+    E, nu, rho = v["E"], v["nu"], v["rho"]
+    st, med = b.state, b.info["medium"]
+    kn = 2 * E * d / (np.sqrt(3) * (1 - nu))                    # 2 Kn, thickness t = d
+    assert st.kn == pytest.approx(kn, rel=1e-12)
+    assert st.ks == pytest.approx(kn * (1 - 3 * nu) / (1 + nu), rel=1e-12)
+    assert st.m == pytest.approx(rho * np.sqrt(3) / 2 * d ** 3, rel=1e-12)
+    assert st.xb == pytest.approx(1e6 * d) and st.thickness == d
+    assert med["cp"] == pytest.approx(np.sqrt(E / ((1 - nu ** 2) * rho)), rel=1e-12)
+    assert med["k0"] == nu and med["source"].startswith("library 'sandstone'")
+    # element parameters: the medium they make (their kn, ks kept, cell mass, unbreakable)
+    b = _small(elements="elastic")
+    assert b.state.kn == pytest.approx(ROCK["kn"], rel=1e-12)
+    assert b.state.ks == pytest.approx(ROCK["ks"], rel=1e-12)
+    assert b.state.m == pytest.approx(ROCK["rho"] * np.sqrt(3) / 2 * d ** 3, rel=1e-12)
+    # another fill refused
+    with pytest.raises(WorkflowError, match="elements applies to fill: lattice"):
+        _cfg(fill="random", elements="elastic", material="sand")

@@ -1,4 +1,5 @@
-"""Seismic valley: the lattice medium, the pulse, the section geometry and bad input."""
+"""Seismic valley: the elastic lattice medium, the pulse, the section geometry and bad
+input."""
 import math
 from pathlib import Path
 
@@ -6,8 +7,13 @@ import numpy as np
 import pytest
 import yaml
 
-from geodem.cases.seismic import (Pulse, boundary_sets, ground_smooth, lattice_E_nu,
-                                     lattice_medium, section_points)
+from geodem.cases.seismic import ground_smooth
+from geodem.fields.wave import Pulse
+from geodem.materials import elastic_lattice, lattice_E_nu
+
+
+def lattice_medium(E, nu, rho, d):
+    return elastic_lattice(E, nu, rho, d, 2)
 
 pytestmark = pytest.mark.usefixtures("one_numba_thread")
 ROOT = Path(__file__).resolve().parents[2]
@@ -48,19 +54,48 @@ def test_pulses_peak_and_support():
         Pulse("step", 1.0, 1.0)
 
 
+def _valley_scene(**model):
+    import tempfile
+
+    from geodem.workflow.schema import validate_document
+    from geodem.workflow.yamlio import load_document
+
+    wf = yaml.safe_load(open(ROOT / "workflows" / "seismic_valley.yaml"))
+    wf["model"].update(model)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "wf.yaml"
+        path.write_text(yaml.safe_dump(wf))
+        cfg = validate_document(load_document(path))
+    return cfg.model.build(cfg)
+
+
 def test_valley_section_points_and_ground_line():
     d = 1.0
-    x, y_top = section_points(40.0, 20.0, d, valley_width=20.0, valley_depth=8.0)
-    # no centre strictly inside the V: y > y_top - 8 + 0.8 |x - 20| (+ round-off)
-    inside = x[:, 1] > y_top - 8.0 + 0.8 * np.abs(x[:, 0] - 20.0) + 1e-9
+    # 40 x 20 m, a V 20 m wide and 8 m deep at x = 20 (slope 0.8)
+    b = _valley_scene(d=d, domain={"box": {"min": [0.0, 0.0], "max": [40.0, 20.0]}},
+                      regions=[{"name": "valley", "empty": True, "shape": {"polygon": [
+                          [8.75, 21.0], [31.25, 21.0], [20.0, 12.0]]}}])
+    x = b.reference
+    h = 0.5 * math.sqrt(3.0)
+    assert x[:, 1].max() == pytest.approx(23 * h)  # rows from y = 0: floor(20 / h) + 1 = 24
+    # no centre strictly inside the V: y > 12 + 0.8 |x - 20| (+ round-off)
+    inside = x[:, 1] > 12.0 + 0.8 * np.abs(x[:, 0] - 20.0) + 1e-9
     assert not inside.any()
-    sets = boundary_sets(x, d)
-    g = x[sets["surface"]]
-    assert len(sets["surface"]) == len(np.unique(np.floor(x[:, 0] / d + 1e-6)))
+    st = b.state
+    g = st.x[st.group_mask("ground")]
+    # the ground line: one element per d-wide strip along x (x = 0 ... 40: 41 strips)
+    assert len(g) == len(np.unique(np.floor(x[:, 0] / d + 1e-6))) == 41
     centre = np.argmin(np.abs(g[:, 0] - 20.0))
-    assert g[centre, 1] == pytest.approx(y_top - 8.0, abs=d)   # valley bottom
-    assert g[np.argmin(g[:, 0]), 1] == pytest.approx(y_top)      # flat ground
-    assert np.all(x[sets["base"], 1] == x[:, 1].min())
+    assert g[centre, 1] == pytest.approx(12.0, abs=d)            # valley bottom
+    assert g[np.argmin(g[:, 0]), 1] == pytest.approx(23 * h)       # flat ground
+    # the elastic medium: the granite's cell mass, halved on the side planes
+    med = b.info["medium"]
+    on_side = (np.abs(st.x[:, 0]) < 1e-9) | (np.abs(st.x[:, 0] - 40.0) < 1e-9)
+    assert on_side.sum() == 12 * 2  # even rows (12 of 24) start at x = 0 and end at x = 40
+    assert np.all(st.m[on_side] == 0.5 * med["mass"])
+    assert np.all(st.m[~on_side] == med["mass"])
+    assert med["mass"] == pytest.approx(2650.0 * h * d ** 3)
+    assert st.thickness == d
 
 
 def test_ground_smooth_is_a_running_mean_along_the_line():
@@ -77,18 +112,27 @@ def test_bad_input_names_the_field(tmp_path):
     from geodem.cli import app
 
     wf = yaml.safe_load(open(ROOT / "workflows" / "seismic_valley.yaml"))
-    wf["model"].pop("material")
-    wf["model"]["nu"] = 0.4
+    wf["materials"]["rock"] = {"library": "granite"}
+    wf["model"].update({"dim": 3, "regions": [], "half_mass": [],
+                        "domain": {"box": {"min": [0.0, 0.0, 0.0], "max": [60, 20, 40]}}})
+    wf["model"]["groups"] = {}
+    wf["steps"] = [{"kind": "run", "nsteps": 1}]
     p = tmp_path / "bad.yaml"
     p.write_text(yaml.safe_dump(wf))
     res = CliRunner().invoke(app, ["validate", str(p)])
     assert res.exit_code == 2
     text = " ".join(res.output.split())
-    assert "model.nu" in text and "0.3333" in text
-    wf["model"]["nu"] = 0.25
+    assert "model.material" in text and "0.2" in text  # granite nu = 0.25 on the FCC lattice
+    wf = yaml.safe_load(open(ROOT / "workflows" / "seismic_valley.yaml"))
     wf["steps"][0]["duration"] = 0.01
     p.write_text(yaml.safe_dump(wf))
     res = CliRunner().invoke(app, ["validate", str(p)])
     assert res.exit_code == 2
     text = " ".join(res.output.split())
-    assert "steps[0].duration" in text and "crossed the section" in text
+    assert "steps[0].duration" in text and "crossed the model" in text
+    wf = yaml.safe_load(open(ROOT / "workflows" / "seismic_valley.yaml"))
+    wf["model"]["elements"] = "calibrated"
+    p.write_text(yaml.safe_dump(wf))
+    res = CliRunner().invoke(app, ["validate", str(p)])
+    assert res.exit_code == 2
+    assert "elements: elastic" in " ".join(res.output.split())
