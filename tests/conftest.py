@@ -90,3 +90,33 @@ def step_backends(base, backends, steps):
         sim.sync()
         out[be] = (st, sim.crack_log())
     return out
+
+
+@pytest.fixture(scope="session")
+def step_example_run(tmp_path_factory):
+    """``run(kind, backend=None) -> (exit status, summary)``: step ``kind``'s example workflow
+    (tests/integration/test_workflow_steps.example_workflow) run once per session and backend
+    (None: the one a plain run resolves, ``$GEODEM_BACKEND`` or auto). The contract test
+    (test_workflow_steps) and the host/device test (test_separate_memory) check the same plain
+    run; the column_collapse example alone takes ~45 s on 2 cores. Each caller gets its own
+    copy of the summary."""
+    import copy
+
+    from geodem.backends import resolve_name
+    from geodem.workflow import run_workflow
+
+    done = {}
+
+    def run(kind, backend=None):
+        from tests.integration.test_workflow_steps import example_workflow
+
+        name = resolve_name(backend)
+        if (kind, name) not in done:
+            folder = tmp_path_factory.mktemp(f"example_{kind}_{name}")
+            p = example_workflow(folder, kind)
+            done[kind, name] = run_workflow(p, folder / "out", backend=backend, echo=False,
+                                            progress=False)
+        code, summary = done[kind, name]
+        return code, copy.deepcopy(summary)
+
+    return run

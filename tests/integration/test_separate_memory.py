@@ -12,14 +12,18 @@ from tests.integration.test_workflow_steps import example_workflow
 from tests.separate_memory import SeparateMemory
 
 backends._load_all()
+# the examples' models have tens to a few hundred elements (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 
 @pytest.mark.parametrize("kind", list(STEPS))
-def test_step_kind_keeps_host_and_device_in_step(kind, tmp_path, monkeypatch):
+def test_step_kind_keeps_host_and_device_in_step(kind, tmp_path, monkeypatch,
+                                                 step_example_run):
+    # the plain numba run is the one test_workflow_steps checks (run once per session)
+    code, plain = step_example_run(kind, "numba")
+    assert code == 0, plain.get("error")
     monkeypatch.setenv("GEODEM_BACKEND", "numba")
     p = example_workflow(tmp_path, kind)
-    code, plain = run_workflow(p, tmp_path / "shared", echo=False, progress=False)
-    assert code == 0, plain.get("error")
     monkeypatch.setitem(backends.BACKENDS, "numba", SeparateMemory)
     code, apart = run_workflow(p, tmp_path / "apart", echo=False, progress=False)
     assert code == 0, apart.get("error")

@@ -1,7 +1,8 @@
 """Same seed, same result, on any thread count: the owner pass's slabs, and so the order of
 every force sum, are fixed by the model (``geodem.backends.numba_backend.slab_count``), not by
 numba's pool. Each case runs in fresh processes at NUMBA_NUM_THREADS = 1, 2, 3 and 8 (a pool
-larger than the machine included) and compares the final states bit for bit. Integration tier:
+larger than the machine included; one process per thread count runs both blocks) and compares
+the final states bit for bit. Integration tier:
 about 45 s in all on 2 cores (the 8-thread runs wait on each other's threads)."""
 import json
 import os
@@ -21,15 +22,16 @@ import hashlib, sys
 from geodem.bench import SPACING, build_specimen
 from geodem.core.engine import Simulation
 from geodem.core.state import enable_contact_damping, enable_rotation
-st = build_specimen(3000, dim=int(sys.argv[1]))
-st.xb[:] = 0.004 * SPACING
-st.fs0[:] = 2.0e-3 * st.kn * SPACING
-enable_rotation(st, mu_r=0.2)
-enable_contact_damping(st, restitution=0.5)
-sim = Simulation(st, backend="numba", monitor_every=0)
-sim.run(100)
-h = hashlib.sha256(st.x.tobytes() + st.v.tobytes() + st.fs.tobytes() + st.w.tobytes())
-print(sim.backend.slabs, sim.crack_log().size, h.hexdigest())
+for dim in sys.argv[1:]:
+    st = build_specimen(3000, dim=int(dim))
+    st.xb[:] = 0.004 * SPACING
+    st.fs0[:] = 2.0e-3 * st.kn * SPACING
+    enable_rotation(st, mu_r=0.2)
+    enable_contact_damping(st, restitution=0.5)
+    sim = Simulation(st, backend="numba", monitor_every=0)
+    sim.run(100)
+    h = hashlib.sha256(st.x.tobytes() + st.v.tobytes() + st.fs.tobytes() + st.w.tobytes())
+    print(dim, sim.backend.slabs, sim.crack_log().size, h.hexdigest())
 """
 
 
@@ -46,9 +48,20 @@ def _python(code, threads, *args):
     return res.stdout.split()
 
 
+@pytest.fixture(scope="module")
+def block_runs():
+    """``{threads: {dim: [slabs, cracks, sha256]}}``: one fresh process per thread count runs
+    the 2-D and then the 3-D block (separate models, one interpreter start and kernel load)."""
+    out = {}
+    for t in THREADS:
+        words = _python(BLOCK, t, "2", "3")
+        out[t] = {int(words[k]): words[k + 1:k + 4] for k in range(0, len(words), 4)}
+    return out
+
+
 @pytest.mark.parametrize("dim", [2, 3])
-def test_a_breaking_block_is_the_same_on_any_thread_count(dim):
-    runs = {t: _python(BLOCK, t, str(dim)) for t in THREADS}
+def test_a_breaking_block_is_the_same_on_any_thread_count(dim, block_runs):
+    runs = {t: block_runs[t][dim] for t in THREADS}
     slabs, cracks, _ = runs[1]
     assert int(slabs) == 12 and int(cracks) > 100  # many slabs, many broken bonds
     assert all(r == runs[1] for r in runs.values()), runs

@@ -11,6 +11,8 @@ from geodem.workflow import STEPS, StepBase, register_step, run_workflow, workfl
 from geodem.workflow.schema import F, load_builtins
 
 load_builtins()
+# the examples' models have tens to a few hundred elements (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
 
 LATTICE = {"type": "lattice_block", "dim": 2, "counts": [6, 6], "diameter": 0.01,
            "material": "rock", "groups": {"base": {"side": "ymin"}, "top": {"side": "ymax"}}}
@@ -38,14 +40,13 @@ def example_workflow(tmp_path, kind):
 
 
 @pytest.mark.parametrize("kind", list(STEPS))
-def test_every_step_kind_runs(kind, tmp_path):
+def test_every_step_kind_runs(kind, step_example_run):
     cls = STEPS[kind]
     assert cls.__doc__ and cls.example["kind"] == kind
     for name, f in cls.model_fields.items():  # every field documented
         assert f.description, f"{kind}.{name} has no description"
     ex = dict(cls.example)
-    p = example_workflow(tmp_path, kind)
-    code, s = run_workflow(p, tmp_path / "out", echo=False, progress=False)
+    code, s = step_example_run(kind)  # the run test_separate_memory compares with
     assert code == 0 and s["status"] == "ok", s.get("error")
     if cls.example_model is None:
         assert s["steps"] == 20 + cls.model_validate(ex).planned_steps(
