@@ -860,7 +860,7 @@ def _rock_once(spec, el, folder, friction: bool) -> dict:
                "structure": spec.structure, "element": el,
                "measured": {k: m[k] for k in ("E", "nu", "Cu", "Tu")},
                "targets": {k: t[k] for k in ("E", "nu", "Cu", "Tu")},
-               "fit": spec.fit, "fits": m["fits"],
+               "fit": spec.fit, "fits": m.get("fits", {}),
                "ratio": m["Cu"] / m["Tu"], "target_ratio": t["Cu"] / t["Tu"],
                "brazilian": b, "wall_time_s": m["wall_time_s"] + b["wall_time_s"]}
     if friction:
