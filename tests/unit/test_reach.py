@@ -121,3 +121,15 @@ def test_the_friction_study_changes_one_parameter_per_variant(tmp_path, monkeypa
     # K = 3.5: sin phi = 2.5 / 4.5
     assert rec["rows"][1]["phi_deg"] == pytest.approx(math.degrees(math.asin(2.5 / 4.5)))
     assert (tmp_path / "friction.md").exists()
+
+
+@pytest.mark.parametrize("dim, top", [(2, 0.45), (3, 0.25)])
+def test_the_shipped_charts_hold_the_elastic_fit_of_every_point(dim, top):
+    """Every measured point of the shipped charts has its elastic nu too, never above the
+    window's by more than round-off (cracks only add lateral strain), and in 3-D it stays below
+    0.25 (nu 0.25-0.30 in 3-D are reached only through cracks: docs/calibration.md)."""
+    chart = shipped_chart(dim)
+    ok = [p for p in chart["points"] if "ratio" in p]
+    assert ok and all("nu_elastic" in p for p in ok)
+    assert all(p["nu_elastic"] <= p["nu"] + 0.01 for p in ok)
+    assert max(p["nu_elastic"] for p in ok) < top
