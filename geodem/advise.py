@@ -188,13 +188,14 @@ def _number(v):
 
 # ------------------------------------------------------------------ the report
 def advise(path, sets=(), backend: str | None = None, *, calibrate: bool = True,
-           target_error: float = 0.01, speed_csv=None) -> dict:
-    """The advice for a workflow as a dict (WorkflowError on bad input, as ``prepare``)."""
+           target_error: float = 0.01, speed_csv=None, progress=None) -> dict:
+    """The advice for a workflow as a dict (WorkflowError on bad input, as ``prepare``);
+    ``progress`` gets the build's progress lines (``prepare``'s)."""
     from geodem.workflow.runner import _estimate, prepare
 
     if not (0.0 < target_error < 1.0):
         raise ValueError(f"target error {target_error!r}: allowed 0 < target < 1 (relative)")
-    prep = prepare(path, sets=sets, backend=backend)
+    prep = prepare(path, sets=sets, backend=backend, progress=progress)
     cfg, plan, st = prep.cfg, prep.plan, prep.built.state
     if calibrate:
         cal = measure_throughput(st, prep.backend, plan.dt)

@@ -1234,7 +1234,8 @@ def advise_cmd(
     from geodem.advise import advise, report_lines
 
     a = advise(file, sets=_parse_sets(sets), backend=backend, calibrate=not no_calibrate,
-               target_error=target_error, speed_csv=speed_csv)
+               target_error=target_error, speed_csv=speed_csv,
+               progress=_build_progress(_err()))
     if as_json:
         sys.stdout.write(json.dumps(a, indent=2) + "\n")
         return

@@ -172,6 +172,8 @@ def test_validate_and_dry_run_show_the_build_on_a_terminal(tmp_path):
     assert "building model two_balls: ~" in term and "built model two_balls: " in term
     code, out, term = _on_a_terminal(["run", TB, "--dry-run"])
     assert code == 0 and "estimated run time" in out and "built model two_balls" in term
+    code, out, term = _on_a_terminal(["advise", TB, "--no-calibrate"])
+    assert code == 0 and "built model two_balls: " in term and "built model" not in out
     run = tmp_path / "run"
     code, out, term = _on_a_terminal(["run", TB, "-o", str(run), "--no-progress"])
     assert code == 0 and "building model" not in term
