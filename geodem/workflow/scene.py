@@ -294,6 +294,10 @@ class Scene(ModelBase):
     regions: list[Region] = F([], description="Ordered regions; a later one overrides")
     interfaces: Literal["bonded", "joint"] = F(
         "bonded", description="Bonds across two regions: 'bonded' (kept) or 'joint' (cut)")
+    interface_strength: float = F(
+        1.0, gt=0, le=1, description="Bonded interfaces: the breaking displacement xb and shear "
+                                     "strength fs0 of a bond across two regions times this "
+                                     "(1: as strong as the weaker element)")
     gravity: Optional[list[float]] = F(None, unit="m/s^2", min_length=2, max_length=3,
                                        description="Gravity vector (dim components)")
     groups: dict[Name, SceneGroup] = F({}, description="Named element groups")
@@ -391,6 +395,10 @@ class Scene(ModelBase):
             if np.any(hi - lo < self.d):
                 out.append((("domain",), f"the domain is thinner than one element (d = "
                                          f"{self.d:g} m) along an axis"))
+        if self.interface_strength != 1.0 and self.interfaces == "joint":
+            out.append((("interface_strength",), "a joint has no bonds to weaken; allowed: "
+                                                 "interfaces: bonded with interface_strength "
+                                                 "< 1, or a joint"))
         if self.gravity is not None and len(self.gravity) != self.dim:
             out.append((("gravity",), f"{len(self.gravity)} components for dim = {self.dim}"))
         names = [n for n, _, _ in self.slots() if n is not None]
@@ -543,6 +551,9 @@ class Scene(ModelBase):
         if self.gravity is not None:
             st.gravity[:self.dim] = self.gravity
         info["joint_bonds_cut"] = cut_interfaces(st, region) if self.interfaces == "joint" else 0
+        if self.interfaces == "bonded" and self.interface_strength != 1.0:
+            info["interface_bonds_weakened"] = weaken_interfaces(st, region,
+                                                                 self.interface_strength)
         self._add_groups(st, region)
         if self.sort:
             spatial_sort(st)
@@ -778,14 +789,31 @@ def halve_side_masses(state, sides, d) -> None:
     state.m[on] *= 0.5
 
 
-def cut_interfaces(state, region) -> int:
-    """Unbond every bonded contact whose two elements lie in different regions (a joint: the
-    contact stays, frictional, without cement); returns the number of bonds cut."""
-    from geodem.core.state import BONDED, UNBONDED
+def _across(state, region) -> np.ndarray:
+    """Mask of the rows (both sides of each contact) bonding two elements of different
+    regions."""
+    from geodem.core.state import BONDED
 
     i = np.repeat(np.arange(state.n), state.nbr.shape[1]).reshape(state.nbr.shape)
     j = state.nbr
     across = (j >= 0) & (state.cstate == BONDED)
-    across &= region[i] != region[np.where(j >= 0, j, 0)]
+    return across & (region[i] != region[np.where(j >= 0, j, 0)])
+
+
+def weaken_interfaces(state, region, factor: float) -> int:
+    """Scale the bond rate (breaking force and Fs0, PHYSICS.md section 2) of every bond across
+    two regions by ``factor``: a weaker interface (a bedding plane, a cemented contact);
+    returns the number of bonds."""
+    across = _across(state, region)
+    state.brate[across] = (state.brate[across].astype(np.float64) * factor).astype(np.float32)
+    return int(across.sum()) // 2
+
+
+def cut_interfaces(state, region) -> int:
+    """Unbond every bonded contact whose two elements lie in different regions (a joint: the
+    contact stays, frictional, without cement); returns the number of bonds cut."""
+    from geodem.core.state import UNBONDED
+
+    across = _across(state, region)
     state.cstate[across] = UNBONDED
     return int(across.sum()) // 2

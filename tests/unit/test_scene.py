@@ -417,3 +417,38 @@ def test_elastic_elements_are_the_rock_on_the_lattice():
     # another fill refused
     with pytest.raises(WorkflowError, match="elements applies to fill: lattice"):
         _cfg(fill="random", elements="elastic", material="sand")
+
+
+def test_a_weak_interface_scales_the_bonds_across_and_breaks_first():
+    """interface_strength 0.5: the bonds across the two regions (and only they) carry half the
+    breaking force. A bond of two equal elements breaks at Fn = kn xb with Fn = (kn / 2) x
+    stretch (springs in series), i.e. at a stretch of 2 xb (1 xb at half strength). Stretched
+    by eps = 2 xb / d along y, every inclined lattice bond opens by d eps sin^2(60 deg) =
+    1.5 xb, so exactly the inclined bonds across the interface break, in tension, at once."""
+    from geodem.core.engine import Simulation
+
+    regions = [{"name": "low", "material": "rock", "shape": {"below": 0.1}}]
+    whole = _build(regions=regions).state
+    built = _build(regions=regions, interface_strength=0.5)
+    st = built.state
+    i, j = _bonds(st)
+    low = st.x[:, 1] < 0.1
+    across = low[i] != low[j]
+    assert built.info["interface_bonds_weakened"] == int(across.sum()) // 2 > 0
+    ok = (st.nbr >= 0) & (st.cstate == BONDED)
+    assert np.all(st.brate[ok][across] == np.float32(0.5))
+    assert np.all(st.brate[ok][~across] == 1.0) and np.array_equal(st.x, whole.x)
+    eps = 2.0 * ROCK["xb"] / 0.02
+    st.x[:, 1] *= 1.0 + eps
+    sim = Simulation(st, backend="numpy")
+    sim.run(1)
+    log = sim.crack_log()
+    assert len(log) == int(across.sum()) // 2 and np.all(log["type"] == 1)
+    y = 0.5 * (st.x[log["i"], 1] + st.x[log["j"], 1])
+    assert np.all(np.abs(y - 0.1) < 0.02)
+
+
+def test_a_joint_has_no_interface_strength():
+    with pytest.raises(WorkflowError, match="interface_strength"):
+        _cfg(regions=[{"name": "low", "material": "clay", "shape": {"below": 0.1}}],
+             interfaces="joint", interface_strength=0.5)
