@@ -843,8 +843,12 @@ def rock_cmd(
 
 
 def _check_fit(fit) -> None:
-    if fit not in (None, "window", "elastic"):
-        _fail(f"--fit {fit!r}: allowed: window or elastic", USER_ERROR)
+    """Refuse an unknown --fit before anything is written (the CalibrationSpec would too, but
+    after the output folder exists)."""
+    from geodem.cases.uniaxial import FITS
+
+    if fit is not None and fit not in FITS:
+        _fail(f"--fit {fit!r}: allowed: {' or '.join(FITS)}", USER_ERROR)
 
 
 def _rock_once(spec, el, folder, friction: bool) -> dict:

@@ -52,6 +52,8 @@ from geodem.workflow.schema import (
 )
 
 CURVE = "uniaxial_curve.csv"
+#: how the UCS test fits E and nu (the step's ``fit``; calibrate and rock take the same)
+FITS = ("window", "elastic")
 COLUMNS = ("step", "time", "axial_strain", "axial_stress", "lateral_strain", "cracks_tensile",
            "cracks_shear", "cracks_total")
 
@@ -171,7 +173,7 @@ class Uniaxial(PlatenTest):
     fit_window: list[float] = F([0.1, 0.5], min_length=2, max_length=2,
                                 description="E and nu are fitted between these fractions of "
                                             "the peak stress (pre-peak)")
-    fit: Literal["window", "elastic"] = F(
+    fit: Literal[FITS] = F(
         "window", description="'window': E and nu over the whole fit_window; 'elastic': "
                               "over its part below the crack-initiation stress (the last "
                               "stress before crack_fraction of the bonds has broken). Both "

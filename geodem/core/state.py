@@ -290,6 +290,13 @@ def new_state(x, r, m, *, dim=None, width=16, kn=0.0, ks=0.0, xb=0.0, fs0=0.0, m
     return st
 
 
+def scale_bond_rate(state: State, sel, factor: float) -> None:
+    """Multiply the bond rate (breaking force and Fs0 scale, ``brate``) of the contact rows
+    ``sel`` (a boolean mask or an index tuple into the (N, W) rows) by ``factor``, in double
+    precision and stored back as float32 (a factor compounds exactly as the rows hold it)."""
+    state.brate[sel] = (state.brate[sel].astype(np.float64) * factor).astype(np.float32)
+
+
 def inertia_of(state: State) -> np.ndarray:
     """Moment of inertia of each element [kg m^2]: a solid sphere ``(2/5) m r^2`` in 3-D, a
     disc (cylinder about its axis) ``(1/2) m r^2`` in 2-D."""

@@ -230,8 +230,10 @@ class CalibrationSpec:
             raise ValueError(f"packings = {self.packings!r}: allowed 1-10")
         if not 1 <= int(self.iterations) <= 20:
             raise ValueError(f"iterations = {self.iterations!r}: allowed 1-20")
-        if self.fit not in ("window", "elastic"):
-            raise ValueError(f"fit = {self.fit!r}: allowed 'window' or 'elastic'")
+        from geodem.cases.uniaxial import FITS
+
+        if self.fit not in FITS:
+            raise ValueError(f"fit = {self.fit!r}: allowed {' or '.join(map(repr, FITS))}")
         if self.prefer not in ("Cu", "Tu"):
             raise ValueError(f"prefer = {self.prefer!r}: allowed 'Cu' or 'Tu'")
         if len(self.ucs_size) != self.dim:

@@ -26,6 +26,7 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import model_validator
 
+from geodem.core.state import scale_bond_rate
 from geodem.workflow.scene import Shape
 from geodem.workflow.schema import (
     DOF_NAMES,
@@ -287,8 +288,7 @@ class Weaken(StepBase):
         if self.cut:
             res["bonds_cut"] = int(sim.cut(rows[pair], j[pair]))
         elif self.factor is not None:
-            br = st.brate
-            br[rows, cols] = (br[rows, cols].astype(np.float64) * self.factor).astype(np.float32)
+            scale_bond_rate(st, (rows, cols), self.factor)
             res["bonds_weakened"] = int(pair.sum())
         if self.friction_factor is not None:
             idx = np.arange(st.n) if self.group == "all" else np.flatnonzero(

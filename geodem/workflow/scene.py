@@ -804,8 +804,10 @@ def weaken_interfaces(state, region, factor: float) -> int:
     """Scale the bond rate (breaking force and Fs0, PHYSICS.md section 2) of every bond across
     two regions by ``factor``: a weaker interface (a bedding plane, a cemented contact);
     returns the number of bonds."""
+    from geodem.core.state import scale_bond_rate
+
     across = _across(state, region)
-    state.brate[across] = (state.brate[across].astype(np.float64) * factor).astype(np.float32)
+    scale_bond_rate(state, across, factor)
     return int(across.sum()) // 2
 
 
