@@ -37,6 +37,23 @@ PASSES = ("move", "force", "energy", "move_idx", "force_idx", "force_owner", "fi
 SERIAL = ("steps",)  # loops that call the passes
 
 
+def _numpy_aliases_for_numba_cuda(np_module=None) -> bool:
+    """Give NumPy back ``row_stack`` (an alias of ``vstack``) where it was removed (NumPy 2.5).
+
+    numba-cuda (0.30.4 and earlier) registers an overload of ``np.row_stack`` when it compiles
+    its first kernel, so with NumPy >= 2.5 every CUDA kernel failed to compile with
+    ``AttributeError: module 'numpy' has no attribute 'row_stack'``. Returns True if the alias
+    was added.
+    """
+    import numpy
+
+    np_module = numpy if np_module is None else np_module
+    if hasattr(np_module, "row_stack"):
+        return False
+    np_module.row_stack = np_module.vstack
+    return True
+
+
 def _constants(dim, rot, damp):
     return {"DIM": dim, "ROT": rot, "DAMP": damp, "NR": 1 if dim == 2 else 3}
 
@@ -155,6 +172,7 @@ def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = 
     if target == "cuda":
         # ``cuda`` must be a module global: the CUDA simulator swaps it in the kernels' globals
         global cuda
+        _numpy_aliases_for_numba_cuda()
         from numba import cuda
 
         dev = lambda f: cuda.jit(device=True)(f)  # noqa: E731

@@ -59,14 +59,13 @@ def any_at_least(a, value) -> bool:
 
 
 @numba.njit(parallel=True, cache=True)
-def _unbalance(x, r, kn, ks, nbr, cstate, fs, a, m, v, eta, free):
-    """Sums of |net force| over free elements and of |contact force| over row entries."""
+def _unbalance_rows(x, r, kn, nbr, cstate, fs, a, m, v, eta, free, fnet, fcon, ncon):
+    """Per element: |net force| (-1 for an element with no free component), the sum of
+    |contact force| over its row entries, and their count. Written per element (no parallel
+    reduction) so that the sums do not depend on the thread count, and because numba 0.68.0 on
+    Python 3.12 fails to compile reductions inside this loop ("unexpected cycle in lookup")."""
     n, w = nbr.shape
     dim = x.shape[1]
-    fnet = 0.0
-    fcon = 0.0
-    ncon = 0
-    nfree = 0
     for i in prange(n):
         isfree = False
         f2 = 0.0
@@ -75,9 +74,9 @@ def _unbalance(x, r, kn, ks, nbr, cstate, fs, a, m, v, eta, free):
                 isfree = True
                 t = m[i] * a[i, c] + eta[i] * v[i, c]
                 f2 += t * t
-        if isfree:
-            fnet += np.sqrt(f2)
-            nfree += 1
+        fnet[i] = np.sqrt(f2) if isfree else -1.0
+        row = 0.0
+        count = 0
         for k in range(w):
             j = nbr[i, k]
             if j < 0:
@@ -91,9 +90,10 @@ def _unbalance(x, r, kn, ks, nbr, cstate, fs, a, m, v, eta, free):
             xn = np.sqrt(d2) - r[i] - r[j]
             knij = kn[i] * kn[j] / (kn[i] + kn[j])
             fn = knij * xn if (cstate[i, k] == 1 or xn < 0.0) else 0.0
-            fcon += np.sqrt(fn * fn + s2)
-            ncon += 1
-    return fnet, nfree, fcon, ncon
+            row += np.sqrt(fn * fn + s2)
+            count += 1
+        fcon[i] = row
+        ncon[i] = count
 
 
 def unbalanced_force_ratio(state) -> float:
@@ -103,8 +103,14 @@ def unbalanced_force_ratio(state) -> float:
     ratio measures the contact and body forces left unbalanced (PFC's mean unbalanced ratio).
     """
     s = state
-    fnet, nfree, fcon, ncon = _unbalance(s.x, s.r, s.kn, s.ks, s.nbr, s.cstate, s.fs, s.a, s.m,
-                                         s.v, s.eta, s.free)
+    fnet = np.empty(s.n)
+    fcon = np.empty(s.n)
+    ncon = np.empty(s.n, dtype=np.int64)
+    _unbalance_rows(s.x, s.r, s.kn, s.nbr, s.cstate, s.fs, s.a, s.m, s.v, s.eta, s.free,
+                    fnet, fcon, ncon)
+    freed = fnet >= 0.0
+    nfree, ncon = int(freed.sum()), int(ncon.sum())
+    fnet, fcon = float(fnet[freed].sum()), float(fcon.sum())
     if nfree == 0 or ncon == 0 or fcon == 0.0:
         return 0.0
     return (fnet / nfree) / (fcon / ncon)

@@ -166,3 +166,16 @@ def test_both_rows_decide_alike(backend):
     back = np.array([np.flatnonzero(st.nbr[b] == a)[0] for a, b in zip(i, j)])
     assert np.array_equal(st.cstate[i, k], st.cstate[j, back])
     assert np.array_equal(st.fs[i, k], -st.fs[j, back])  # exactly opposite shear springs
+
+
+def test_numpy_alias_for_numba_cuda_is_added_only_where_missing():
+    """numba-cuda registers an overload of ``np.row_stack`` when it compiles a kernel; NumPy 2.5
+    removed that alias, so it is put back (as ``vstack``) only where it is missing."""
+    import types
+
+    from geodem.backends.kernels import _numpy_aliases_for_numba_cuda
+
+    fake = types.SimpleNamespace(vstack=np.vstack)
+    assert _numpy_aliases_for_numba_cuda(fake) is True
+    assert fake.row_stack is np.vstack
+    assert _numpy_aliases_for_numba_cuda(fake) is False

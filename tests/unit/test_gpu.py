@@ -21,17 +21,17 @@ from tests.unit.test_rotation import rel_diff
 pytestmark = pytest.mark.skipif("cupy" not in available(),
                                 reason="no usable GPU here (geodem info says why)")
 
-def cupy_against_numpy(base, fields, steps=12):
+def cupy_against_numpy(base, fields, steps=12, rtol=1e-12):
     """Step ``base`` on cupy and on the NumPy reference: identical bond decisions and crack
     logs (more than five bonds broken); the arrays ``assert_same`` compares and those of
-    ``fields`` within 1e-12."""
+    ``fields`` within ``rtol`` of their largest value."""
     out = step_backends(base, ("cupy", "numpy"), steps)
     (a, log_a), (b, log_b) = out["cupy"], out["numpy"]
-    assert_same(a, b)
+    assert_same(a, b, rtol=rtol)
     assert len(log_a) > 5, "the model must break bonds for the decision check to mean anything"
     assert np.array_equal(np.sort(log_a, order=("i", "j")), np.sort(log_b, order=("i", "j")))
     for k in fields:
-        assert rel_diff(a, b, k) <= 1e-12, k
+        assert rel_diff(a, b, k) <= rtol, k
     return a
 
 
@@ -45,7 +45,11 @@ def test_cupy_matches_numpy_with_rotation_and_contact_damping():
     enable_rotation(st, mu_r=0.1)
     enable_contact_damping(st, restitution=0.5)
     st.w[:] = np.random.default_rng(3).normal(0.0, 20.0, st.w.shape)
-    a = cupy_against_numpy(st, ("w", "wa", "mr"))
+    # The GPU compiler contracts a*b + c into fused multiply-adds (one rounding instead of two);
+    # with turning elements and dashpots the accelerations after 12 steps then differ by about
+    # 1e-12 of their largest value (1.05e-12 measured on an H200, 2026-12-04), so this case
+    # allows 1e-11. The bond decisions and the crack log must still be identical.
+    a = cupy_against_numpy(st, ("w", "wa", "mr"), rtol=1e-11)
     assert np.abs(a.mr).max() > 0.0
 
 
