@@ -72,12 +72,13 @@ def _user_error_types():
     from geodem.bench import BenchError
     from geodem.extras import MissingExtra
     from geodem.geo.errors import GeometryError
+    from geodem.io.view import ViewError
     from geodem.materials_library import MaterialError
     from geodem.workflow.errors import WorkflowError
 
     # typer.BadParameter: an option checked inside a command's body
     return (BackendError, BenchError, WorkflowError, MaterialError, GeometryError,
-            MissingExtra, typer.BadParameter)
+            ViewError, MissingExtra, typer.BadParameter)
 
 
 def _command_name() -> str:
@@ -1246,6 +1247,50 @@ def advise_cmd(
     con = _out()
     for line in report_lines(a):
         con.print(escape(line), highlight=False, soft_wrap=True)
+
+
+@app.command("view", help=(
+    "Draw one frame of a run to a PNG (pyvista, off-screen).\n\n"
+    "Reads RUN_DIR/output.h5: the elements of frame K (spheres in 3-D, discs seen from above in "
+    "2-D) coloured by --color, and the bonds broken up to that frame as lines (red tensile, blue "
+    "shear, grey joint). Writes RUN_DIR/view_frame_K.png unless -o names another file. Needs "
+    "the 'vis' extra. Exit 0, or 2 for a missing run, an unknown frame or a bad option. See "
+    "docs/view.md."))
+@_guard
+def view_cmd(
+    run_dir: Annotated[str, typer.Argument(metavar="RUN_DIR", help="Run directory.")],
+    frame: Annotated[int, typer.Option(
+        "--frame", "-f", help="Frame index (0 the first, -1 the last).")] = -1,
+    output: Annotated[Optional[str], typer.Option(
+        "-o", "--output", metavar="FILE.png", help="Picture to write. \\[default: "
+        "RUN_DIR/view_frame_K.png]")] = None,
+    color: Annotated[str, typer.Option(
+        "--color", help="Colour the elements by displacement, velocity, radius or none.")] =
+        "displacement",
+    size: Annotated[str, typer.Option(
+        "--size", metavar="WxH", help="Picture size in pixels.")] = "1200x900",
+    opacity: Annotated[Optional[float], typer.Option(
+        "--opacity", help="Element opacity 0-1. \\[default: 1; 0.2 in 3-D with cracks]")] = None,
+    show: Annotated[bool, typer.Option(
+        "--show", help="Open an interactive window (needs a display) and save on close.")] =
+        False,
+):
+    from geodem.io.view import ViewError, render_frame
+
+    try:
+        w, h = (int(v) for v in size.lower().split("x"))
+        if not (16 <= w <= 8192 and 16 <= h <= 8192):
+            raise ValueError
+    except ValueError:
+        raise ViewError(f"--size {size}: allowed: WIDTHxHEIGHT in pixels, 16 to 8192 each "
+                        "(e.g. 1200x900)") from None
+    r = render_frame(run_dir, frame=frame, output=output, color=color, size=(w, h),
+                     opacity=opacity, show=show)
+    c = r["cracks"]
+    sys.stdout.write(f"wrote {r['path']}: frame {r['frame']} of {r['frames']} (step "
+                     f"{r['step']:,}, t = {r['time']:.4g} s), {r['elements']:,} elements, "
+                     f"{c['tensile']} tensile / {c['shear']} shear / {c['joint']} joint "
+                     "cracks\n")
 
 
 @app.command("schema")

@@ -2,7 +2,9 @@
 
 The files are VTK XML PolyData written directly (base64 binary arrays, UInt64 headers), so no VTK
 library is needed to write them; ParaView, pyvista or any VTK reader opens them. Each element is
-a point (with a vertex cell) carrying its radius, velocity, displacement, group and bond count.
+a point (with a vertex cell) carrying its radius, velocity, displacement, group and bond count;
+each bond broken so far is a line cell between its two elements (cell data ``crack_type``: 1
+tensile, 2 shear, 0 joint; -1 on the vertex cells), so ParaView shows the crack network.
 """
 from __future__ import annotations
 
@@ -32,11 +34,37 @@ def _xyz(a):
     return a if a.shape[1] == 3 else np.column_stack([a, np.zeros(len(a))])
 
 
-def write_vtp(path, points, point_data: dict) -> None:
+def rows_of(ids, numbers) -> np.ndarray:
+    """Rows of the elements whose built numbers are ``numbers`` in a model whose rows carry the
+    built numbers ``ids`` (``Simulation.ids``; the crack log names elements by them); -1 for
+    an element no longer in the model (excavated)."""
+    ids, numbers = np.asarray(ids), np.asarray(numbers)
+    if len(ids) == 0:
+        return np.full(len(numbers), -1, np.int64)
+    order = np.argsort(ids, kind="stable")
+    pos = np.clip(np.searchsorted(ids[order], numbers), 0, len(ids) - 1)
+    return np.where(ids[order][pos] == numbers, order[pos], -1)
+
+
+def crack_lines(ids, log):
+    """``(rows (M, 2), types (M,))`` of the cracks of ``log`` (``Simulation.crack_log``) whose
+    two elements are still in the model; ``ids`` None: no element was removed (row = number)."""
+    if ids is None:
+        i, j = np.asarray(log["i"], np.int64), np.asarray(log["j"], np.int64)
+    else:
+        i, j = rows_of(ids, log["i"]), rows_of(ids, log["j"])
+    keep = (i >= 0) & (j >= 0)
+    return np.column_stack([i[keep], j[keep]]), np.asarray(log["type"])[keep]
+
+
+def write_vtp(path, points, point_data: dict, lines=None, line_types=None) -> None:
     """Write points (N, 2|3) with ``point_data`` {name: (N,) or (N, 2|3) array} as a .vtp file
-    (atomically: temp file + rename)."""
+    (atomically: temp file + rename); ``lines`` (M, 2) point indices become line cells, with
+    ``line_types`` (M,) as the cell data ``crack_type``."""
     pts = _xyz(points)
     n = len(pts)
+    lines = np.zeros((0, 2), np.int64) if lines is None else np.asarray(lines, np.int64)
+    m = len(lines)
     arrays = []
     for name, val in point_data.items():
         val = np.asarray(val)
@@ -49,17 +77,26 @@ def write_vtp(path, points, point_data: dict) -> None:
         else:
             arrays.append(_data_array(name, val))
     ids = np.arange(n, dtype=np.int64)
+    cell_data = line_cells = ""
+    if m:
+        types = (np.zeros(m) if line_types is None else np.asarray(line_types)).astype(np.int32)
+        cell_type = np.concatenate([np.full(n, -1, np.int32), types])  # verts first, then lines
+        cell_data = "<CellData>\n" + _data_array("crack_type", cell_type) + "\n</CellData>\n"
+        line_cells = ("<Lines>\n" + _data_array("connectivity", lines.ravel()) + "\n"
+                      + _data_array("offsets", 2 * np.arange(1, m + 1, dtype=np.int64))
+                      + "\n</Lines>\n")
     text = (
         '<?xml version="1.0"?>\n'
         '<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64">\n'
         "<PolyData>\n"
-        f'<Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
+        f'<Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="{m}" '
         'NumberOfStrips="0" NumberOfPolys="0">\n'
-        "<PointData>\n" + "\n".join(arrays) + "\n</PointData>\n"
-        "<Points>\n" + _data_array("Points", pts, 3) + "\n</Points>\n"
+        "<PointData>\n" + "\n".join(arrays) + "\n</PointData>\n" + cell_data
+        + "<Points>\n" + _data_array("Points", pts, 3) + "\n</Points>\n"
         "<Verts>\n" + _data_array("connectivity", ids) + "\n"
         + _data_array("offsets", ids + 1) + "\n</Verts>\n"
-        "</Piece>\n</PolyData>\n</VTKFile>\n")
+        + line_cells
+        + "</Piece>\n</PolyData>\n</VTKFile>\n")
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(text)
@@ -67,11 +104,20 @@ def write_vtp(path, points, point_data: dict) -> None:
 
 
 def read_vtp(path) -> dict:
-    """Read back what :func:`write_vtp` wrote: {'Points': (N, 3), name: array, ...}."""
+    """Read back what :func:`write_vtp` wrote: {'Points': (N, 3), name: array, ...}; the line
+    cells as 'lines' (M, 2) when there are any."""
     import re
 
     out = {}
     text = Path(path).read_text()
+    block = re.search(r"<Lines>(.*?)</Lines>", text, re.S)
+    if block:
+        conn = re.search(r'Name="connectivity" NumberOfComponents="1" format="binary">([^<]*)<',
+                         block.group(1)).group(1)
+        raw = base64.b64decode(conn)
+        nbytes = int(np.frombuffer(raw[:8], np.uint64)[0])
+        out["lines"] = np.frombuffer(raw[8:8 + nbytes], np.int64).reshape(-1, 2)
+        text = text.replace(block.group(0), "")
     for typ, name, comps, payload in re.findall(
             r'<DataArray type="(\w+)" Name="(\w+)" NumberOfComponents="(\d+)" '
             r'format="binary">([^<]*)</DataArray>', text):
@@ -98,7 +144,8 @@ class VtkWriter:
             for t, f in re.findall(r'timestep="([^"]+)"[^>]*file="([^"]+)"', self.pvd.read_text()):
                 self.frames.append((float(t), f))
 
-    def write(self, state, step: int, reference=None) -> str:
+    def write(self, state, step: int, reference=None, cracks=None) -> str:
+        """One frame; ``cracks``: ``(rows (M, 2), types (M,))`` of the bonds broken so far."""
         x = np.asarray(state.x)
         data = {"radius": np.asarray(state.r), "velocity": np.asarray(state.v)}
         if reference is not None:
@@ -106,7 +153,8 @@ class VtkWriter:
         data["group"] = np.asarray(state.group)
         data["bonds"] = (np.asarray(state.cstate) == 1).sum(axis=1)
         name = f"frame_{int(step):012d}.vtp"
-        write_vtp(self.folder / name, x, data)
+        lines, types = (None, None) if cracks is None else cracks
+        write_vtp(self.folder / name, x, data, lines=lines, line_types=types)
         self.frames = [(t, f) for t, f in self.frames if f != name]
         self.frames.append((float(state.time), name))
         self._write_pvd()

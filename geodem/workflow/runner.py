@@ -841,8 +841,11 @@ class Runner:
                               echo=False)
 
     def _vtk_frame(self):
+        from geodem.io.vtk import crack_lines
+
         st = self.sim.sync()
-        self.vtk.write(st, st.step, self.built.reference)
+        self.vtk.write(st, st.step, self.built.reference,
+                       cracks=crack_lines(self.sim.ids, self.sim.crack_log()))
 
     def _wall(self) -> float:
         return time.perf_counter() - self._t_start
