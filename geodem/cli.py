@@ -943,12 +943,16 @@ def _float_list(value: Optional[str], name: str, integer=False):
     "targets by (docs/calibration.md, 'Reachable region').\n\n"
     "KIND 'friction': the triaxial workflow's friction angle with the library --material's "
     "2-D element parameters, one micro-parameter changed at a time (friction, bond range, "
-    "strength scatter); writes friction.json and friction.md; docs/triaxial.md."))
+    "strength scatter); writes friction.json and friction.md; docs/triaxial.md.\n\n"
+    "KIND 'scale': build time, memory per element, element-steps/s, checkpoint and output time "
+    "of 3-D models against their size (--sizes) for each family (--families: lattice, "
+    "isotropic, granular); writes scale.json, scale.csv and scale.png (log-log, with the "
+    "linear cost) and flags a cost growing faster than N log N; docs/performance.md."))
 @_guard
 def study_cmd(
     kind: Annotated[str, typer.Argument(metavar="KIND", help="ucs, stability, "
                                                              "speed-accuracy, freeze, graded, "
-                                                             "reach or friction")],
+                                                             "reach, friction or scale")],
     out: Annotated[str, typer.Option("-o", "--out", help="Output directory.")],
     workflow: Annotated[str, typer.Option("--workflow", help="UCS workflow file.")] =
     "workflows/ucs.yaml",
@@ -975,11 +979,23 @@ def study_cmd(
         "--rho", help="reach: bond shear / tensile strength ratios, comma-separated.")] = None,
     save: Annotated[bool, typer.Option("--save", help="reach: store the chart in the "
                                                       "package.")] = False,
+    sizes: Annotated[Optional[str], typer.Option(
+        "--sizes", callback=_parse_sizes, help="scale: element counts, comma-separated "
+        "\\[default: 1000,10000,100000,1000000]")] = None,
+    families: Annotated[Optional[str], typer.Option(
+        "--families", help="scale: model families, comma-separated (lattice, isotropic, "
+                           "granular) \\[default: all]")] = None,
+    max_build: Annotated[float, typer.Option(
+        "--max-build", min=1.0, help="scale: seconds of build after which a family's larger "
+                                     "sizes are skipped (their build time projected)")] = 600.0,
 ):
     from geodem.studies.study import ucs_study
 
     if kind == "reach":
         _reach(out, dim, s_values, rho_values, save, backend)
+        return
+    if kind == "scale":
+        _scale(out, sizes, families, max_build, backend)
         return
     if kind == "friction":
         from geodem.studies.friction import describe, friction_study
@@ -1026,7 +1042,7 @@ def study_cmd(
         return
     if kind != "ucs":
         _fail(f"study KIND {kind!r}: allowed: ucs, stability, speed-accuracy, freeze, graded, "
-              "reach, friction",
+              "reach, friction, scale",
               USER_ERROR)
     n = _float_list(across, "--across", integer=True)
     f = _float_list(fractions, "--dt-fractions")
@@ -1060,6 +1076,28 @@ def study_cmd(
     con.print(f"wrote study.json, speed_accuracy.png to {out}", highlight=False)
     if not any("E_rel_error" in p for p in rec["points"]):
         _fail("no point of the study gave a result (see the errors above)", FAILURE)
+
+
+def _scale(out, sizes, families, max_build, backend):
+    from geodem.studies.scale import DEFAULT_SIZES, FAMILIES, scale_study
+
+    fams = [f.strip() for f in families.split(",")] if families else list(FAMILIES)
+    bad = [f for f in fams if f not in FAMILIES]
+    if bad:
+        _fail(f"--families {families}: {', '.join(bad)} unknown; allowed: "
+              f"{', '.join(FAMILIES)}", USER_ERROR)
+    con = _out()
+    res = scale_study(_fresh_out_dir(out, overwrite=False), fams, sizes or DEFAULT_SIZES,
+                      backend=backend or "numba", max_build_s=max_build,
+                      progress=lambda msg: con.print(escape(msg), highlight=False))
+    for fam, g in res["growth"].items():
+        worst = [k for k, v in g.items() if v["faster_than_n_log_n"]]
+        e = g["build_s"]["exponent"]
+        con.print(f"{fam}: build time grows as N^{e:.2f}" if e is not None else
+                  f"{fam}: one size only", highlight=False)
+        if worst:
+            con.print(f"[bold red]{fam}: faster than N log N: {', '.join(worst)}[/]")
+    con.print(f"wrote scale.json, scale.csv, scale.png to {out}", highlight=False)
 
 
 def _reach(out, dim, s_values, rho_values, save, backend):

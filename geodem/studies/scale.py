@@ -1,0 +1,233 @@
+"""``geodem study scale``: what a model costs as its element count grows, as measured curves.
+
+For each model family and size N (3-D):
+
+* **build** [s]: from nothing to a bonded state with its neighbour rows (packing, bonding, rows);
+* **memory** [B/element]: the state's arrays and the backend's own buffers (``geodem bench``);
+* **element-steps/s**: ``geodem.bench.bench_one`` (a whole ``Simulation.run``, checks and
+  rebuilds included) and the bare step;
+* **checkpoint** [s]: ``geodem.core.checkpoint.save_state`` of the state;
+* **output** [s]: one frame of positions and velocities appended to an HDF5 file and flushed
+  (``geodem.io.h5``), and one ``.vtp`` frame (``geodem.io.vtk``).
+
+Families (``FAMILIES``):
+
+* ``lattice``: the bench block (``geodem.bench.build_specimen``): a perturbed FCC lattice with
+  random radii, bonded, ~12 contacts per element;
+* ``isotropic``: the lab specimens' random packing (``geodem.build.isotropic.isotropic_packing``:
+  random radii jammed by FIRE, then made stress-free), bonded, in a cube;
+* ``granular``: the ``lattice`` block with every bond cut (unbonded frictional contacts), as a
+  granular flow steps.
+
+Each measured curve is compared with the ideal linear cost: its local exponent between the two
+largest sizes, ``log(c2 / c1) / log(N2 / N1)``, is reported, and a cost growing faster than
+N log N (exponent above ``1 + 1 / ln N1 + SLACK``) is flagged. A family whose build at one size
+took longer than ``max_build_s`` is not built at larger sizes; the projected build time there is
+reported instead.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+FAMILIES = ("lattice", "isotropic", "granular")
+DEFAULT_SIZES = (1000, 10_000, 100_000, 1_000_000)
+SLACK = 0.1  # exponent allowance over N log N (timer noise, cache effects)
+D = 0.01  # element diameter of the isotropic family [m]
+
+
+def _lattice(n):
+    from geodem.bench import build_specimen
+
+    return build_specimen(n, dim=3)
+
+
+def _granular(n):
+    st = _lattice(n)
+    st.cstate[st.cstate == 1] = 0  # cut every bond: contacts only (Coulomb friction)
+    return st
+
+
+def _isotropic(n):
+    from geodem.build.isotropic import PHI_BULK, isotropic_packing
+    from geodem.build.lattice import bonded_state
+    from geodem.core.neighbors import build_rows, spatial_sort
+
+    side = (n * math.pi / 6.0 * D ** 3 / PHI_BULK) ** (1.0 / 3.0)
+    x, r, _ = isotropic_packing([side] * 3, D, n=n)
+    kn = 1.0e9 * D
+    st = bonded_state(x, r, density=2650.0, kn=kn, ks=kn / 3.0, xb=1.0 * D, fs0=1.0e3 * kn * D,
+                      mu=0.5, gap=0.05 * D)
+    st.skin = 0.3 * D
+    build_rows(st)
+    spatial_sort(st)
+    return st
+
+
+BUILDERS = {"lattice": _lattice, "isotropic": _isotropic, "granular": _granular}
+
+
+def _timed(fn, *args):
+    t0 = time.perf_counter()
+    out = fn(*args)
+    return out, time.perf_counter() - t0
+
+
+def _io_costs(state, folder) -> dict:
+    """Seconds to write a checkpoint, an HDF5 frame (positions, velocities) and a .vtp frame."""
+    from geodem.core.checkpoint import save_state
+    from geodem.io.h5 import H5Writer
+    from geodem.io.vtk import write_vtp
+
+    _, ckpt = _timed(save_state, state, folder / "ckpt.npz")
+    size = os.path.getsize(folder / "ckpt.npz")
+    t0 = time.perf_counter()
+    h5 = H5Writer(folder / "out.h5")
+    for name in ("position", "velocity"):
+        h5.series(f"particles/all/{name}", shape=state.x.shape)
+        h5.append(f"particles/all/{name}", state.step, state.time,
+                  state.x if name == "position" else state.v)
+    h5.close()
+    h5_s = time.perf_counter() - t0
+    _, vtk_s = _timed(write_vtp, folder / "frame.vtp", state.x, {"radius": state.r,
+                                                                 "velocity": state.v})
+    for f in ("ckpt.npz", "out.h5", "frame.vtp"):
+        (folder / f).unlink(missing_ok=True)
+    return {"checkpoint_s": ckpt, "checkpoint_bytes_per_element": size / state.n,
+            "h5_frame_s": h5_s, "vtk_frame_s": vtk_s}
+
+
+def measure(family: str, n: int, backend: str = "numba", steps: int | None = None) -> dict:
+    """One point: build, memory, throughput and I/O of ``family`` at about ``n`` elements."""
+    from geodem.bench import bench_one
+
+    if family not in BUILDERS:
+        raise ValueError(f"family {family!r}: allowed: {', '.join(FAMILIES)}")
+    state, build = _timed(BUILDERS[family], int(n))
+    rec = {"family": family, "n_requested": int(n), "n": int(state.n), "build_s": build}
+    with tempfile.TemporaryDirectory(prefix="geodem-scale-") as tmp:
+        rec.update(_io_costs(state, Path(tmp)))
+    b = bench_one(state, backend, steps=steps, copy=False)
+    rec.update({k: b[k] for k in ("element_steps_per_s", "kernel_element_steps_per_s",
+                                  "bytes_per_element", "contacts_per_element", "steps",
+                                  "rebuilds", "threads", "backend")})
+    return rec
+
+
+def exponent(points, key) -> float | None:
+    """Local exponent of ``key`` against N between the two largest sizes of ``points``."""
+    pts = sorted((p for p in points if p.get(key) and p[key] > 0), key=lambda p: p["n"])
+    if len(pts) < 2:
+        return None
+    a, b = pts[-2], pts[-1]
+    return math.log(b[key] / a[key]) / math.log(b["n"] / a["n"])
+
+
+def verdict(points, key) -> dict:
+    """Exponent of a cost against N and whether it grows faster than N log N."""
+    e = exponent(points, key)
+    if e is None:
+        return {"exponent": None, "faster_than_n_log_n": None}
+    n1 = sorted(p["n"] for p in points if p.get(key))[-2]
+    return {"exponent": e, "faster_than_n_log_n": bool(e > 1.0 + 1.0 / math.log(n1) + SLACK)}
+
+
+def scale_study(out, families=FAMILIES, sizes=DEFAULT_SIZES, backend="numba",
+                max_build_s: float = 600.0, progress=None) -> dict:
+    """Measure every family at every size (skipping larger sizes after a build over
+    ``max_build_s``); writes scale.json, scale.csv and scale.png into ``out``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for f in families:
+        if f not in BUILDERS:
+            raise ValueError(f"--families: {f!r} unknown; allowed: {', '.join(FAMILIES)}")
+    points, skipped = [], []
+    for fam in families:
+        BUILDERS[fam](200)  # compile the builder's kernels first: not part of the curve
+        done = []
+        for n in sorted(sizes):
+            if done and done[-1]["build_s"] > max_build_s:
+                e = exponent(done, "build_s") or 1.0
+                proj = done[-1]["build_s"] * (n / done[-1]["n"]) ** max(e, 1.0)
+                skipped.append({"family": fam, "n": int(n), "projected_build_s": proj})
+                if progress:
+                    progress(f"{fam:9s} {n:>9,}: skipped (build projected at {proj:,.0f} s)")
+                continue
+            rec = measure(fam, n, backend)
+            done.append(rec)
+            points.append(rec)
+            if progress:
+                progress(describe(rec))
+    summary = {fam: {k: verdict([p for p in points if p["family"] == fam], k)
+                     for k in ("build_s", "checkpoint_s", "h5_frame_s", "vtk_frame_s")}
+               for fam in families}
+    res = {"backend": backend, "points": points, "skipped": skipped, "growth": summary,
+           "machine": _machine()}
+    (out / "scale.json").write_text(json.dumps(res, indent=2))
+    _csv(out / "scale.csv", points)
+    plot(res, out / "scale.png")
+    return res
+
+
+def _machine() -> dict:
+    import platform
+
+    import numba
+
+    return {"cpu_count": os.cpu_count(), "numba_threads": int(numba.get_num_threads()),
+            "platform": platform.platform()}
+
+
+def _csv(path, points):
+    keys = ["family", "n", "build_s", "bytes_per_element", "element_steps_per_s",
+            "kernel_element_steps_per_s", "checkpoint_s", "h5_frame_s", "vtk_frame_s",
+            "rebuilds", "steps", "contacts_per_element"]
+    rows = [",".join(keys)] + [",".join(str(p.get(k, "")) for k in keys) for p in points]
+    Path(path).write_text("\n".join(rows) + "\n")
+
+
+def describe(rec) -> str:
+    return (f"{rec['family']:9s} {rec['n']:>9,}: build {rec['build_s']:8.2f} s, "
+            f"{rec['bytes_per_element']:6.0f} B/element, {rec['element_steps_per_s']:.3g} "
+            f"element-steps/s (kernels {rec['kernel_element_steps_per_s']:.3g}), checkpoint "
+            f"{rec['checkpoint_s']:.3f} s, h5 frame {rec['h5_frame_s']:.3f} s, vtk frame "
+            f"{rec['vtk_frame_s']:.3f} s")
+
+
+def plot(res, path) -> None:
+    """Log-log charts of the costs against N, each family with the ideal linear line through
+    its smallest point."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return
+    panels = [("build_s", "build [s]"), ("element_steps_per_s", "element-steps/s"),
+              ("bytes_per_element", "memory [B/element]"), ("checkpoint_s", "checkpoint [s]"),
+              ("h5_frame_s", "HDF5 frame [s]"), ("vtk_frame_s", ".vtp frame [s]")]
+    fig, axes = plt.subplots(2, 3, figsize=(12, 7))
+    for ax, (key, label) in zip(axes.ravel(), panels):
+        for fam in dict.fromkeys(p["family"] for p in res["points"]):
+            pts = sorted((p for p in res["points"] if p["family"] == fam), key=lambda p: p["n"])
+            n = np.array([p["n"] for p in pts], float)
+            y = np.array([p[key] for p in pts], float)
+            line, = ax.loglog(n, y, "o-", label=fam)
+            if key in ("build_s", "checkpoint_s", "h5_frame_s", "vtk_frame_s") and len(n):
+                ax.loglog(n, y[0] * n / n[0], ":", color=line.get_color(), lw=1)
+        ax.set_xlabel("elements N")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0, 0].legend(title="dotted: linear in N", fontsize=8)
+    fig.suptitle(f"cost against model size (3-D, {res['backend']}, "
+                 f"{res['machine']['numba_threads']} threads)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)

@@ -1,0 +1,35 @@
+"""`geodem study scale` end to end on tiny sizes: every family measured, the files written, the
+numbers consistent with the built models; bad input exits 2."""
+import json
+
+from typer.testing import CliRunner
+
+from geodem.cli import app
+
+
+def test_scale_study_on_tiny_models(tmp_path):
+    out = tmp_path / "scale"
+    res = CliRunner().invoke(app, ["study", "scale", "-o", str(out), "--sizes", "300,900",
+                                   "--families", "lattice,granular,isotropic"])
+    assert res.exit_code == 0, res.output
+    r = json.loads((out / "scale.json").read_text())
+    assert {p["family"] for p in r["points"]} == {"lattice", "granular", "isotropic"}
+    for p in r["points"]:
+        assert 0.5 * p["n_requested"] <= p["n"] <= 1.5 * p["n_requested"]
+        # the state alone is ~870 B per element at ~12 contacts (docs/performance.md)
+        assert 700 < p["bytes_per_element"] < 1500
+        assert p["element_steps_per_s"] > 0 and p["build_s"] > 0 and p["checkpoint_s"] > 0
+        assert p["checkpoint_bytes_per_element"] > 500
+    lattice = [p for p in r["points"] if p["family"] == "lattice"]
+    granular = [p for p in r["points"] if p["family"] == "granular"]
+    assert [p["n"] for p in lattice] == [p["n"] for p in granular]  # the same block, cut
+    assert set(r["growth"]) == {"lattice", "granular", "isotropic"}
+    assert (out / "scale.png").stat().st_size > 1000
+    assert len((out / "scale.csv").read_text().splitlines()) == 1 + len(r["points"])
+
+
+def test_unknown_family_exits_2(tmp_path):
+    res = CliRunner().invoke(app, ["study", "scale", "-o", str(tmp_path / "s"),
+                                   "--families", "lattice,foam"])
+    assert res.exit_code == 2
+    assert "foam unknown; allowed: lattice, isotropic, granular" in res.output
