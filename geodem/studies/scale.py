@@ -45,13 +45,13 @@ D = 0.01  # element diameter of the isotropic family [m]
 def _lattice(n):
     from geodem.bench import build_specimen
 
-    return build_specimen(n, dim=3)
+    return build_specimen(n, dim=3), {}
 
 
 def _granular(n):
-    st = _lattice(n)
+    st, info = _lattice(n)
     st.cstate[st.cstate == 1] = 0  # cut every bond: contacts only (Coulomb friction)
-    return st
+    return st, info
 
 
 def _isotropic(n):
@@ -60,14 +60,16 @@ def _isotropic(n):
     from geodem.core.neighbors import build_rows, spatial_sort
 
     side = (n * math.pi / 6.0 * D ** 3 / PHI_BULK) ** (1.0 / 3.0)
-    x, r, _ = isotropic_packing([side] * 3, D, n=n)
+    x, r, rep = isotropic_packing([side] * 3, D, n=n)
     kn = 1.0e9 * D
     st = bonded_state(x, r, density=2650.0, kn=kn, ks=kn / 3.0, xb=1.0 * D, fs0=1.0e3 * kn * D,
                       mu=0.5, gap=0.05 * D)
     st.skin = 0.3 * D
     build_rows(st)
     spatial_sort(st)
-    return st
+    # what the jamming took: compression cycles and minimiser (FIRE) iterations in all
+    return st, {"jam_cycles": int(rep["jam_cycles"]),
+                "fire_iterations": int(rep["fire_iterations"]), "packing_s": float(rep["time_s"])}
 
 
 BUILDERS = {"lattice": _lattice, "isotropic": _isotropic, "granular": _granular}
@@ -109,8 +111,8 @@ def measure(family: str, n: int, backend: str = "numba", steps: int | None = Non
 
     if family not in BUILDERS:
         raise ValueError(f"family {family!r}: allowed: {', '.join(FAMILIES)}")
-    state, build = _timed(BUILDERS[family], int(n))
-    rec = {"family": family, "n_requested": int(n), "n": int(state.n), "build_s": build}
+    (state, info), build = _timed(BUILDERS[family], int(n))
+    rec = {"family": family, "n_requested": int(n), "n": int(state.n), "build_s": build, **info}
     with tempfile.TemporaryDirectory(prefix="geodem-scale-") as tmp:
         rec.update(_io_costs(state, Path(tmp)))
     b = bench_one(state, backend, steps=steps, copy=False)
@@ -193,7 +195,9 @@ def _csv(path, points):
 
 
 def describe(rec) -> str:
-    return (f"{rec['family']:9s} {rec['n']:>9,}: build {rec['build_s']:8.2f} s, "
+    jam = (f" (jamming: {rec['jam_cycles']} cycles, {rec['fire_iterations']:,} FIRE "
+           "iterations)" if "fire_iterations" in rec else "")
+    return (f"{rec['family']:9s} {rec['n']:>9,}: build {rec['build_s']:8.2f} s{jam}, "
             f"{rec['bytes_per_element']:6.0f} B/element, {rec['element_steps_per_s']:.3g} "
             f"element-steps/s (kernels {rec['kernel_element_steps_per_s']:.3g}), checkpoint "
             f"{rec['checkpoint_s']:.3f} s, h5 frame {rec['h5_frame_s']:.3f} s, vtk frame "
