@@ -147,9 +147,9 @@ def render_frame(run_dir, frame: int = -1, output=None, color: str = "displaceme
     cracks inside the body show)."""
     from geodem.extras import needs_extra
 
+    fr = read_frame(run_dir, frame, color)  # the run and the frame first: clear errors
     with needs_extra("geodem view"):
         import pyvista as pv
-    fr = read_frame(run_dir, frame, color)
     out = Path(output) if output else Path(run_dir) / f"view_frame_{fr.index}.png"
     if out.suffix.lower() != ".png":
         raise ViewError(f"-o {out}: allowed: a .png file")
