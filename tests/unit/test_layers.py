@@ -25,8 +25,8 @@ LAYERS = (
     ("geodem.measure",),
     ("geodem.workflow",),
     ("geodem.cases",),
-    ("geodem.studies",),
-    ("geodem.bench", "geodem.advise", "geodem.sweep", "geodem.cli", "geodem.__main__"),
+    ("geodem.studies", "geodem.bench"),  # studies of accuracy and cost; bench: the step's speed
+    ("geodem.advise", "geodem.sweep", "geodem.cli", "geodem.__main__"),
 )
 
 
