@@ -189,11 +189,13 @@ def _time_kernels(sim, max_steps: int, seconds: float = KERNEL_SECONDS):
     return s.n * k / wall, k
 
 
-def bench_one(state, backend: str, steps: int | None = None, copy: bool = True) -> dict:
+def bench_one(state, backend: str, steps: int | None = None, copy: bool = True,
+              fields=()) -> dict:
     """Time ``Simulation.run`` of ``state`` on ``backend``; one record.
 
     ``copy=True`` steps a copy (so the next backend starts from the same state); ``False`` steps
-    ``state`` itself (saves the memory of a copy; the state is changed).
+    ``state`` itself (saves the memory of a copy; the state is changed). ``fields``: factories
+    of coupled fields to attach first (their attach time is ``field_attach_s``).
     """
     from geodem.core.engine import Simulation
     from geodem.core.neighbors import row_counts
@@ -208,6 +210,10 @@ def bench_one(state, backend: str, steps: int | None = None, copy: bool = True) 
         # generated specimen starts with overlaps near the monitor's limit)
         kw["monitor_every"] = 0
     sim = Simulation(st, backend=backend, **kw)
+    t0 = time.perf_counter()
+    for make in fields:
+        sim.add_field(make())
+    attach = time.perf_counter() - t0
     # the backend's own buffers and tables count too (numba: the threads' force buffers)
     scratch = getattr(sim.backend, "scratch_nbytes", lambda: 0)()
     # warm-up: compiles the kernels on first use; not timed
@@ -250,6 +256,7 @@ def bench_one(state, backend: str, steps: int | None = None, copy: bool = True) 
         "kernel_steps": kernel_steps,
         "bonds_broken": broken,
         "warmup_s": warm,
+        "field_attach_s": attach,
     }
     del sim, st
     gc.collect()

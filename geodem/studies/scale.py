@@ -17,7 +17,12 @@ Families (``FAMILIES``):
 * ``isotropic``: the lab specimens' random packing (``geodem.build.isotropic.isotropic_packing``:
   random radii jammed by FIRE, then made stress-free), bonded, in a cube;
 * ``granular``: the ``lattice`` block with every bond cut (unbonded frictional contacts), as a
-  granular flow steps.
+  granular flow steps;
+* ``thermal``: the ``lattice`` block with the thermal field (conduction and expansion,
+  ``geodem.fields.thermal``);
+* ``pore``: the ``lattice`` block with the pore-fluid field (``geodem.fields.pore``; a fluid
+  1,000 times more compressible than water, so that the block's time step stays stable). The
+  field's attach time (pore network) counts in the build; ``FIELD_STEPS`` timed steps only.
 
 Each measured curve is compared with the ideal linear cost: its local exponent between the two
 largest sizes, ``log(c2 / c1) / log(N2 / N1)``, is reported, and a cost growing faster than
@@ -36,7 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
-FAMILIES = ("lattice", "isotropic", "granular")
+FAMILIES = ("lattice", "isotropic", "granular", "thermal", "pore")
+FIELD_STEPS = 20  # timed steps of the families with a coupled field (the pore field is slow)
 DEFAULT_SIZES = (1000, 10_000, 100_000, 1_000_000)
 SLACK = 0.1  # exponent allowance over N log N (timer noise, cache effects)
 D = 0.01  # element diameter of the isotropic family [m]
@@ -72,7 +78,21 @@ def _isotropic(n):
                 "fire_iterations": int(rep["fire_iterations"]), "packing_s": float(rep["time_s"])}
 
 
-BUILDERS = {"lattice": _lattice, "isotropic": _isotropic, "granular": _granular}
+def _thermal_field():
+    from geodem.fields.thermal import ThermalField
+
+    return ThermalField(k=3.0, c=800.0, alpha=1.0e-5)
+
+
+def _pore_field():
+    from geodem.fields.pore import WATER_KF, PoreField
+
+    return PoreField(k_f=1000.0 * WATER_KF)
+
+
+BUILDERS = {"lattice": _lattice, "isotropic": _isotropic, "granular": _granular,
+            "thermal": _lattice, "pore": _lattice}
+FIELDS = {"thermal": (_thermal_field,), "pore": (_pore_field,)}
 
 
 def _timed(fn, *args):
@@ -115,10 +135,16 @@ def measure(family: str, n: int, backend: str = "numba", steps: int | None = Non
     rec = {"family": family, "n_requested": int(n), "n": int(state.n), "build_s": build, **info}
     with tempfile.TemporaryDirectory(prefix="geodem-scale-") as tmp:
         rec.update(_io_costs(state, Path(tmp)))
-    b = bench_one(state, backend, steps=steps, copy=False)
+    fields = FIELDS.get(family, ())
+    if fields and steps is None:
+        steps = FIELD_STEPS
+    b = bench_one(state, backend, steps=steps, copy=False, fields=fields)
     rec.update({k: b[k] for k in ("element_steps_per_s", "kernel_element_steps_per_s",
                                   "bytes_per_element", "contacts_per_element", "steps",
                                   "rebuilds", "threads", "backend")})
+    if fields:  # the field's set-up is part of building the model
+        rec["field_attach_s"] = b["field_attach_s"]
+        rec["build_s"] += b["field_attach_s"]
     return rec
 
 

@@ -10,10 +10,11 @@ from geodem.cli import app
 def test_scale_study_on_tiny_models(tmp_path):
     out = tmp_path / "scale"
     res = CliRunner().invoke(app, ["study", "scale", "-o", str(out), "--sizes", "300,900",
-                                   "--families", "lattice,granular,isotropic"])
+                                   "--families", "lattice,granular,isotropic,thermal,pore"])
     assert res.exit_code == 0, res.output
     r = json.loads((out / "scale.json").read_text())
-    assert {p["family"] for p in r["points"]} == {"lattice", "granular", "isotropic"}
+    assert {p["family"] for p in r["points"]} == {"lattice", "granular", "isotropic", "thermal",
+                                                  "pore"}
     for p in r["points"]:
         assert 0.5 * p["n_requested"] <= p["n"] <= 1.5 * p["n_requested"]
         # the state alone is ~870 B per element at ~12 contacts (docs/performance.md)
@@ -23,7 +24,10 @@ def test_scale_study_on_tiny_models(tmp_path):
     lattice = [p for p in r["points"] if p["family"] == "lattice"]
     granular = [p for p in r["points"] if p["family"] == "granular"]
     assert [p["n"] for p in lattice] == [p["n"] for p in granular]  # the same block, cut
-    assert set(r["growth"]) == {"lattice", "granular", "isotropic"}
+    assert set(r["growth"]) == {"lattice", "granular", "isotropic", "thermal", "pore"}
+    for p in r["points"]:  # a field's set-up counts in the build, and its steps are timed
+        if p["family"] in ("thermal", "pore"):
+            assert 0.0 <= p["field_attach_s"] <= p["build_s"] and p["steps"] == 20
     assert (out / "scale.png").stat().st_size > 1000
     assert len((out / "scale.csv").read_text().splitlines()) == 1 + len(r["points"])
 
@@ -32,4 +36,4 @@ def test_unknown_family_exits_2(tmp_path):
     res = CliRunner().invoke(app, ["study", "scale", "-o", str(tmp_path / "s"),
                                    "--families", "lattice,foam"])
     assert res.exit_code == 2
-    assert "foam unknown; allowed: lattice, isotropic, granular" in res.output
+    assert "foam unknown; allowed: lattice, isotropic, granular, thermal, pore" in res.output
