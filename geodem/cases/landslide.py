@@ -900,7 +900,7 @@ class LandslideStep(StepBase):
     def _vtk(self, ctx, slide, frames, x0):
         """ParaView frames of every element in the raster's CRS coordinates (ground at its
         final position, the slide at each frame's)."""
-        from geodem.io.vtk import VtkWriter
+        from geodem.io.vtk import VtkWriter, to_xyz
 
         if not self.vtk_frames or not frames:
             return
@@ -914,15 +914,11 @@ class LandslideStep(StepBase):
             z = np.load(frames[k])
             x[slide] = z["x"]
             v[slide] = z["v"]
-            pseudo = SimpleNamespace(x=to_crs(x, meta), r=s.r, v=_xyz(v), group=s.group,
+            pseudo = SimpleNamespace(x=to_crs(x, meta), r=s.r, v=to_xyz(v), group=s.group,
                                      cstate=s.cstate, time=float(z["time"]))
             w.write(pseudo, int(z["step"]))
         if VTK_DIR not in ctx.runner.files:
             ctx.runner.files.append(VTK_DIR)
-
-
-def _xyz(a):
-    return a if a.shape[1] == 3 else np.column_stack([a, np.zeros(len(a))])
 
 
 def to_crs(x, meta) -> np.ndarray:

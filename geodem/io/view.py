@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geodem.io.vtk import rows_of
+from geodem.io.vtk import crack_lines, to_xyz
 
 COLOR_FIELDS = ("displacement", "velocity", "radius", "none")
 #: crack colours by type (geodem.core.engine.Simulation.crack_log: 1 tensile, 2 shear, 0 joint)
@@ -103,18 +103,10 @@ def read_frame(run_dir, frame: int = -1, color: str = "displacement") -> Frame:
         pairs = np.zeros((0, 2), np.int64)
         types = np.zeros(0, np.int8)
         if "cracks/i" in f:
-            t = f["cracks/time"][()]
-            sel = t <= time * (1 + 1e-12)
-            i = rows_of(ids, f["cracks/i"][()][sel])
-            j = rows_of(ids, f["cracks/j"][()][sel])
-            keep = (i >= 0) & (j >= 0)
-            pairs = np.column_stack([i[keep], j[keep]]).astype(np.int64)
-            types = f["cracks/type"][()][sel][keep].astype(np.int8)
+            sel = f["cracks/time"][()] <= time * (1 + 1e-12)
+            log = {k: f[f"cracks/{k}"][()][sel] for k in ("i", "j", "type")}
+            pairs, types = crack_lines(ids, log)
     return Frame(int(steps[k]), time, k, count, dim, x, r, field, label, pairs, types)
-
-
-def _xyz(x: np.ndarray) -> np.ndarray:
-    return x if x.shape[1] == 3 else np.column_stack([x, np.zeros(len(x))])
 
 
 def frame_meshes(fr: Frame):
@@ -122,7 +114,7 @@ def frame_meshes(fr: Frame):
     field as point data; the cracks as line cells (cell data ``crack_type``)."""
     import pyvista as pv
 
-    pts = _xyz(np.asarray(fr.x, dtype=np.float64))
+    pts = to_xyz(fr.x)
     elements = pv.PolyData(pts)
     elements["radius"] = fr.r
     if fr.field is not None:

@@ -29,7 +29,8 @@ def _data_array(name, arr, comps=1) -> str:
             f"{payload}</DataArray>")
 
 
-def _xyz(a):
+def to_xyz(a):
+    """(N, 2|3) points as (N, 3): 2-D points at z = 0."""
     a = np.asarray(a, dtype=np.float64)
     return a if a.shape[1] == 3 else np.column_stack([a, np.zeros(len(a))])
 
@@ -61,7 +62,7 @@ def write_vtp(path, points, point_data: dict, lines=None, line_types=None) -> No
     """Write points (N, 2|3) with ``point_data`` {name: (N,) or (N, 2|3) array} as a .vtp file
     (atomically: temp file + rename); ``lines`` (M, 2) point indices become line cells, with
     ``line_types`` (M,) as the cell data ``crack_type``."""
-    pts = _xyz(points)
+    pts = to_xyz(points)
     n = len(pts)
     lines = np.zeros((0, 2), np.int64) if lines is None else np.asarray(lines, np.int64)
     m = len(lines)
@@ -73,7 +74,7 @@ def write_vtp(path, points, point_data: dict, lines=None, line_types=None) -> No
         elif val.dtype.kind in "iub":
             val = val.astype(np.int32)
         if val.ndim == 2:
-            arrays.append(_data_array(name, _xyz(val), 3))
+            arrays.append(_data_array(name, to_xyz(val), 3))
         else:
             arrays.append(_data_array(name, val))
     ids = np.arange(n, dtype=np.int64)

@@ -18,8 +18,8 @@ Families (``FAMILIES``):
   random radii jammed by FIRE, then made stress-free), bonded, in a cube;
 * ``granular``: the ``lattice`` block with every bond cut (unbonded frictional contacts), as a
   granular flow steps;
-* ``thermal``: a block at rest (equal spheres touching on an FCC lattice, bonded) with the
-  thermal field (conduction and expansion, ``geodem.fields.thermal``);
+* ``thermal``: a block at rest (equal spheres on an FCC lattice jittered by 1 % of d, bonded)
+  with the thermal field (conduction and expansion, ``geodem.fields.thermal``);
 * ``pore``: that block with the pore-fluid field (``geodem.fields.pore``; a fluid 1,000 times
   more compressible than water, so that the block's time step stays stable). At rest, because
   the ``lattice`` block's vibration (up to ~70 m/s) makes the pore field rebuild its network
@@ -47,7 +47,7 @@ FAMILIES = ("lattice", "isotropic", "granular", "thermal", "pore")
 FIELD_STEPS = 20  # timed steps of the families with a coupled field (the pore field is slow)
 DEFAULT_SIZES = (1000, 10_000, 100_000, 1_000_000)
 SLACK = 0.1  # exponent allowance over N log N (timer noise, cache effects)
-D = 0.01  # element diameter of the isotropic family [m]
+D = 0.01  # element diameter of the isotropic and the at-rest blocks [m]
 
 
 def _lattice(n):
