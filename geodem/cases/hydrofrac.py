@@ -112,12 +112,12 @@ class PlateCoarsenSpec(CoarsenSpec):
     transition: float = F(0.02, unit="m", ge=0, le=1e4,
                           description="Distance beyond the fine band over which the diameter "
                                       "grows linearly from d_mean to factor x d_mean (0: a step)")
-    bonds: Literal["relaxed", "stress_free"] = F(
-        "relaxed", description="relaxed: jammed to 0.1 xb and bonded within 0.1 xb, as the "
-                               "uniform plate and the calibration specimens (make_specimen); "
-                               "stress_free: jammed to 1e-4 d and made stress-free (3-4x "
-                               "faster to build at 16-32 d_mean holes, bonds unstrained; "
-                               "breaks ~10 % higher, docs/hydraulic_fracturing.md)")
+    bonds: Optional[Literal["relaxed", "stress_free"]] = F(
+        None, description="relaxed: jammed to 0.1 xb and bonded within 0.1 xb, as "
+                          "make_specimen's deposited packing (packing: deposit); "
+                          "stress_free: jammed to 1e-4 d and made stress-free within the "
+                          "material's bond_gap, as make_specimen's packing: isotropic; "
+                          "default: the recipe the material was calibrated on")
 
 
 @register_model("hydrofrac_plate")
@@ -253,17 +253,21 @@ class HydrofracPlate(ModelBase):
         would make the coarse rings ``d_nom / d_mean`` times stiffer and stronger per unit
         length, and the stiff ring would shield the borehole wall: :func:`wall_hoop_stress`;
         docs/hydraulic_fracturing.md), and balanced; the borehole cut and the loose elements
-        pruned as in :func:`geodem.cases.brazilian.plate_with_hole`. ``bonds: relaxed``
-        (default): the packing is jammed to a mean contact overlap of ``RELAX_OVERLAP`` (0.1)
-        x xb and pairs within ``CEMENT_GAP`` (0.1) x xb are bonded, as ``make_specimen``
-        relaxes and bonds the uniform plate's and the calibration specimens' packings (a
-        bonded packing released from overlaps larger than xb springs apart and breaks its
-        bonds: at the jamming default of 1e-4 d, 2.5 xb of the sandstone, 40 % broke); when
-        the jamming finds no state so near its jamming point it is tried at 2 and 4 times
-        that. ``bonds: stress_free``: jammed to the default 1e-4 d and made stress-free as
-        the 3-D specimens are (:func:`geodem.build.isotropic.stress_free_network`), bonds
-        unstrained; the jamming near 0.1 xb, 87 % of the relaxed build (332 of 382 s at a
-        16 d hole), is skipped.
+        pruned as in :func:`geodem.cases.brazilian.plate_with_hole`. The bonds follow the
+        recipe the material was calibrated on unless ``bonds`` says otherwise
+        (:func:`plate_bonds`; another recipe is reported as a material warning).
+        ``bonds: relaxed`` (``packing: deposit``): the packing is jammed to a mean contact
+        overlap of ``RELAX_OVERLAP`` (0.1) x xb and pairs within ``CEMENT_GAP`` (0.1) x xb
+        are bonded, as ``make_specimen`` relaxes and bonds a deposited packing (a bonded
+        packing released from overlaps larger than xb springs apart and breaks its bonds:
+        at the jamming default of 1e-4 d, 2.5 xb of the sandstone, 40 % broke); when the
+        jamming finds no state so near its jamming point it is tried at 2 and 4 times that.
+        ``bonds: stress_free`` (``packing: isotropic``, the 2-D library): jammed to the
+        default 1e-4 d and made stress-free within the material's ``bond_gap``
+        (:func:`geodem.build.isotropic.stress_free_network`), as ``isotropic_specimen``;
+        only the start positions differ (placed by the size field). Bonds unstrained, and
+        the jamming near 0.1 xb, 87 % of the relaxed build (332 of 382 s at a 16 d hole),
+        is skipped.
         Returns ``(state, removed, specimen_material, report, centre, graded_info)``."""
         from geodem.build.graded import graded_packing
         from geodem.build.isotropic import stress_free_network
@@ -278,17 +282,17 @@ class HydrofracPlate(ModelBase):
 
         d, c, centre = self.d_mean, self.coarsen, self.centre
         sm = specimen_material(cfg, self.material, 2, d)
-        recipe = ("packing", "bond_gap")  # the bond-strength scatter is applied by cement
-        if sm.element and any(sm.element.get(k) is not None for k in recipe):
-            # said, not silent: the graded plate has its own packing (graded_packing)
-            shown = {k: sm.element[k] for k in recipe if sm.element.get(k) is not None}
+        recipe = (sm.element or {}).get("packing") or "deposit"  # make_specimen's 2-D default
+        bonds = plate_bonds(c.bonds, recipe)
+        if sm.element and (bonds == "stress_free") != (recipe == "isotropic"):
+            # said, not silent: the plate is bonded by another recipe than the calibration's
             sm = SpecimenMaterial(sm.rho, sm.macro, sm.element, sm.label, sm.warnings + (
-                f"the graded plate is packed by graded_packing, not by the material's "
-                f"micro-structure {shown}: the rock is not exactly the calibrated one",))
+                f"the graded plate is bonded '{bonds}' but the material was calibrated on "
+                f"packing: {recipe}: the rock is not exactly the calibrated one",))
         mat = sm.material
         params = specimen_params(mat, sm.element, d)
         lo, hi = np.zeros(2), np.full(2, self.size)
-        if c.bonds == "stress_free":
+        if bonds == "stress_free":
             try:
                 x, r, dn, prep = graded_packing(lo, hi, self.local_d, d, self.distri_rate,
                                                 seed=seed)
@@ -296,7 +300,10 @@ class HydrofracPlate(ModelBase):
                 raise BuildError(("coarsen",), str(exc)) from None
             # stress-free bonds, as the 3-D specimens: touching pairs within a gap, positions
             # and radii adjusted until each bonded pair touches (lengths in d)
-            xs, rs, bi, _, _, added, res = stress_free_network(x / d, r / d, lo / d, hi / d)
+            gap = params.get("bond_gap")
+            xs, rs, bi, _, _, added, res = stress_free_network(
+                x / d, r / d, lo / d, hi / d,
+                **({} if gap is None else {"gap": float(gap)}))
             prep.update({"bonds": int(bi.size), "rattler_bonds": int(added),
                          "max_radius_change": float(np.abs(rs * d / r - 1.0).max()),
                          "stress_free_residual": float(res)})
@@ -335,12 +342,20 @@ class HydrofracPlate(ModelBase):
         dl = self.local_d(st.x)
         fine = dl <= d * (1.0 + 1e-9)
         coarse = (dl >= c.factor * d * (1.0 - 1e-9)) & ~fine
-        info = {"factor": c.factor, "band": c.band, "transition": c.transition,
+        info = {"factor": c.factor, "band": c.band, "transition": c.transition, "bonds": bonds,
                 "fine": int(fine.sum()), "transition_elements": int((~fine & ~coarse).sum()),
                 "coarse": int(coarse.sum()), "d_max": float(2.0 * st.r.max()),
                 "cement_bonds_broken": int(rep["bonds_broken"]),
                 **{f"packing_{k}": v for k, v in prep.items()}}
         return st, removed, sm, rep, centre, info
+
+
+def plate_bonds(bonds: Optional[str], recipe: str) -> str:
+    """How the graded plate bonds its packing: ``bonds`` when given, else the recipe the
+    material was calibrated on (``packing: isotropic`` -> ``stress_free``, the same jamming
+    to 1e-4 d and stress-free bonds within ``bond_gap`` as
+    :func:`geodem.build.specimen.isotropic_specimen`; ``deposit`` -> ``relaxed``)."""
+    return bonds or ("stress_free" if recipe == "isotropic" else "relaxed")
 
 
 def material_tensile_strength(cfg, name: str, dim: int = 2):
@@ -1074,7 +1089,17 @@ class PoreFlow(StepBase):
 
 # ============================================================================ io helpers
 # ============================================================================ pictures
-def _draw_frame(ax, z, centre, R, d, ref, vmax, cmap="viridis"):
+def view_half_width(last, centre, R, d) -> float:
+    """Half-width [m] of the square the maps show around the borehole: the cracks of the last
+    frame ``last`` with a margin (at least 4 hole radii), at most the whole plate."""
+    x = last["x"].astype(float)
+    plate = float(np.max(np.abs(x - centre))) + d
+    ci, cj = last["ci"], last["cj"]
+    reach = (float(np.max(np.abs(0.5 * (x[ci] + x[cj]) - centre))) if len(ci) else 0.0)
+    return min(plate, max(4.0 * R, 1.3 * reach + 2.0 * d))
+
+
+def _draw_frame(ax, z, centre, R, d, ref, vmax, half=None, cmap="viridis"):
     from matplotlib.collections import LineCollection, PolyCollection
 
     x, cells, P = z["x"].astype(float), z["cells"], z["P"].astype(float) / 1e6
@@ -1089,8 +1114,12 @@ def _draw_frame(ax, z, centre, R, d, ref, vmax, cmap="viridis"):
         t /= np.maximum(np.linalg.norm(t, axis=1), 1e-300)[:, None]
         segs = np.stack([mid - 0.5 * d * t, mid + 0.5 * d * t], 1)
         ax.add_collection(LineCollection(segs, colors="red", linewidths=1.2))
-    ax.set_xlim(x[:, 0].min() - d, x[:, 0].max() + d)
-    ax.set_ylim(x[:, 1].min() - d, x[:, 1].max() + d)
+    if half is None:
+        ax.set_xlim(x[:, 0].min() - d, x[:, 0].max() + d)
+        ax.set_ylim(x[:, 1].min() - d, x[:, 1].max() + d)
+    else:
+        ax.set_xlim(centre[0] - half, centre[0] + half)
+        ax.set_ylim(centre[1] - half, centre[1] + half)
     ax.set_aspect("equal")
     label_map(ax, fontsize=6)
     ax.set_title(f"t = {float(z['time']) * 1e3:.3g} ms, P = {float(z['p_inj']) / 1e6:.3g} MPa\n"
@@ -1101,7 +1130,7 @@ def _draw_frame(ax, z, centre, R, d, ref, vmax, cmap="viridis"):
 
 def plot_pressure_maps(path, frames, n, centre, R, d, ref):
     """Pore-pressure maps (colour: P [MPa]) with the cracks (red, across the broken bonds) at
-    ``n`` times spread over the run."""
+    ``n`` times spread over the run, around the borehole (:func:`view_half_width`)."""
     plt = pyplot()
     if plt is None:
         return None
@@ -1115,8 +1144,9 @@ def plot_pressure_maps(path, frames, n, centre, R, d, ref):
     fig, axes = plt.subplots(rws, cols, figsize=(2.4 * cols + 0.9, 2.6 * rws), squeeze=False,
                              layout="constrained")
     pc = None
+    half = view_half_width(np.load(frames[-1]), centre, R, d)
     for ax, z in zip(axes.ravel(), data):
-        pc = _draw_frame(ax, z, centre, R, d, ref, vmax)
+        pc = _draw_frame(ax, z, centre, R, d, ref, vmax, half)
     for ax in axes.ravel()[len(data):]:
         ax.axis("off")
     fig.colorbar(pc, ax=axes.ravel().tolist(), label="pore pressure [MPa]", shrink=0.9)
@@ -1162,11 +1192,12 @@ def write_gif(path, frames, centre, R, d, ref):
         return None
     data = [np.load(f) for f in frames]
     vmax = max(float(z["p_inj"]) for z in data) / 1e6 or 1.0
+    half = view_half_width(data[-1], centre, R, d)
     return frames_gif(path, data, (4.2, 4.2),
-                      lambda ax, z: _draw_frame(ax, z, centre, R, d, ref, vmax), fps=7)
+                      lambda ax, z: _draw_frame(ax, z, centre, R, d, ref, vmax, half), fps=7)
 
 
 __all__ = ["HydrofracPlate", "HydraulicFracturing", "FluidSpec", "PoreFlow", "PoreFluidSpec",
            "hubbert_willis", "burst_samples", "penetration_depth", "strip_tensile_strength",
            "crack_arms", "connected_cracks", "wall_hoop_stress", "axis_misfit_deg",
-           "boundary_tractions", "material_tensile_strength"]
+           "boundary_tractions", "material_tensile_strength", "plate_bonds", "view_half_width"]
