@@ -979,6 +979,10 @@ def study_cmd(
         "--rho", help="reach: bond shear / tensile strength ratios, comma-separated.")] = None,
     save: Annotated[bool, typer.Option("--save", help="reach: store the chart in the "
                                                       "package.")] = False,
+    merge: Annotated[bool, typer.Option("--merge", help="reach: with --save, add the points "
+                                        "to the stored chart (a point of the same ks / kn "
+                                        "and rho_s is replaced) instead of replacing it.")]
+    = False,
     sizes: Annotated[Optional[str], typer.Option(
         "--sizes", callback=_parse_sizes, help="scale: element counts, comma-separated "
         "\\[default: 1000,10000,100000,1000000]")] = None,
@@ -992,7 +996,7 @@ def study_cmd(
     from geodem.studies.study import ucs_study
 
     if kind == "reach":
-        _reach(out, dim, s_values, rho_values, save, backend)
+        _reach(out, dim, s_values, rho_values, save, backend, merge)
         return
     if kind == "scale":
         _scale(out, sizes, families, max_build, backend)
@@ -1100,7 +1104,7 @@ def _scale(out, sizes, families, max_build, backend):
     con.print(f"wrote scale.json, scale.csv, scale.png to {out}", highlight=False)
 
 
-def _reach(out, dim, s_values, rho_values, save, backend):
+def _reach(out, dim, s_values, rho_values, save, backend, merge=False):
     from pathlib import Path
 
     from geodem.studies import reach
@@ -1114,9 +1118,12 @@ def _reach(out, dim, s_values, rho_values, save, backend):
 
     def report(p):
         if "ratio" in p:
-            con.print(f"ks/kn {p['s']:g}, rho_s {p['rho_s']:g}: nu {p['nu']:.3f}, Cu / Tu "
-                      f"{p['ratio']:.3g} (E {p['E']:.3g} Pa); {p['wall_time_s']:.0f} s",
-                      highlight=False)
+            win = f"nu {p['nu']:.3f}" if "nu" in p else escape(p["window_error"])
+            el = (f", elastic nu {p['nu_elastic']:.3f} (cracks from "
+                  f"{100 * p.get('crack_initiation', float('nan')):.0f} % of Cu)"
+                  if "nu_elastic" in p else "")
+            con.print(f"ks/kn {p['s']:g}, rho_s {p['rho_s']:g}: {win}{el}, Cu / Tu "
+                      f"{p['ratio']:.3g}; {p['wall_time_s']:.0f} s", highlight=False)
         else:
             con.print(f"ks/kn {p['s']:g}, rho_s {p['rho_s']:g}: {escape(p['error'])}",
                       highlight=False)
@@ -1125,12 +1132,19 @@ def _reach(out, dim, s_values, rho_values, save, backend):
     b = rec["bounds"]
     if not b:
         _fail("no point of the study gave a result (see the errors above)", FAILURE)
-    con.print(f"Cu / Tu {b['ratio'][0]:.3g}-{b['ratio'][1]:.3g}, nu {b['nu'][0]:.3g}-"
-              f"{b['nu'][1]:.3g}; {rec['wall_time_s']:.0f} s; wrote reach.json, reach.png to "
-              f"{out}", highlight=False)
+    nus = "".join(f", {name} {b[k][0]:.3g}-{b[k][1]:.3g}" for k, name in
+                  (("nu", "nu"), ("nu_elastic", "elastic nu")) if k in b)
+    con.print(f"Cu / Tu {b['ratio'][0]:.3g}-{b['ratio'][1]:.3g}{nus}; "
+              f"{rec['wall_time_s']:.0f} s; wrote reach.json, reach.png to {out}",
+              highlight=False)
     if save:
-        dest = reach.save_chart(rec)
-        con.print(f"saved the chart as {dest}", highlight=False)
+        dest = reach.save_chart(rec, merge=merge)
+        con.print(f"{'added the points to' if merge else 'saved'} the chart {dest}",
+                  highlight=False)
+        if merge:  # the whole chart, as calibrate now judges by it
+            reach.plot_chart(o / "reach_chart.png", reach.shipped_chart(dim))
+            con.print(f"wrote reach_chart.png (every point of the chart) to {out}",
+                      highlight=False)
 
 
 @app.command("sweep", help=(

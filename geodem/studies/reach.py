@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["reach_study", "outside_region", "shipped_chart", "save_chart", "DEFAULT_GRID"]
+__all__ = ["reach_study", "outside_region", "shipped_chart", "save_chart", "plot_chart",
+           "DEFAULT_GRID"]
 
 DEFAULT_S = (0.15, 0.25, 0.35, 0.45, 0.6, 0.8, 1.2)
 DEFAULT_RHO = (0.1, 0.3, 1.0, 3.0, 10.0, 50.0)
@@ -84,15 +85,7 @@ def reach_study(dim: int, out_dir, s_values=None, rho_values=None, backend=None,
             except RuntimeError as exc:
                 p["error"] = str(exc).splitlines()[0][:300]
             else:
-                if m["nu"] >= NU_LIMIT[dim]:
-                    p["error"] = (f"mechanism: fitted nu {m['nu']:.3g} >= {NU_LIMIT[dim]:g} "
-                                  f"(E {m['E']:.3g} Pa)")
-                else:
-                    p.update(nu=m["nu"], E=m["E"], Cu=m["Cu"], Tu=m["Tu"],
-                             ratio=m["Cu"] / m["Tu"], wall_time_s=m["wall_time_s"])
-                    el_fit = m.get("fits", {}).get("elastic")
-                    if el_fit:  # the same UCS run below its crack-initiation stress
-                        p.update(nu_elastic=el_fit["nu"], E_elastic=el_fit["E"])
+                p.update(_point_fits(m, NU_LIMIT[dim]))
             points.append(p)
             if progress:
                 progress(p)
@@ -110,6 +103,31 @@ def reach_study(dim: int, out_dir, s_values=None, rho_values=None, backend=None,
     return rec
 
 
+def _point_fits(m: dict, nu_limit: float) -> dict:
+    """What one measured point contributes: the window fit's ``nu`` and the elastic fit's
+    ``nu_elastic`` (the same UCS run below its crack-initiation stress), Cu / Tu, and
+    ``crack_initiation`` (that stress / Cu). A fit whose nu reaches ``nu_limit`` is no elastic
+    solid and is left out with the reason: ``error`` when the elastic fit says so too (a
+    mechanism), ``window_error`` when only the window does (cracks opening from early in the
+    loading dilate the specimen; below them it is an elastic solid and counts for
+    ``--fit elastic``)."""
+    el = m.get("fits", {}).get("elastic") or {}
+    if m["nu"] < nu_limit:
+        out = {"nu": m["nu"], "E": m["E"]}
+    elif el and el["nu"] < nu_limit:
+        out = {"window_error": f"window fit nu {m['nu']:.3g} >= {nu_limit:g}: dilated by "
+                               f"cracks (E {m['E']:.3g} Pa)"}
+    else:
+        return {"error": f"mechanism: fitted nu {m['nu']:.3g} >= {nu_limit:g} "
+                         f"(E {m['E']:.3g} Pa)"}
+    out.update(Cu=m["Cu"], Tu=m["Tu"], ratio=m["Cu"] / m["Tu"], wall_time_s=m["wall_time_s"])
+    if el:
+        out.update(nu_elastic=el["nu"], E_elastic=el["E"])
+        if el.get("crack_initiation_stress"):
+            out["crack_initiation"] = el["crack_initiation_stress"] / m["Cu"]
+    return out
+
+
 def _bounds(points) -> dict:
     if not points:
         return {}
@@ -125,17 +143,37 @@ def _bounds(points) -> dict:
 #: what the shipped chart keeps of each point (nu and Cu / Tu do not depend on the levels);
 #: ``nu`` is the UCS test's 10-50 % window fit, ``nu_elastic`` its fit below the
 #: crack-initiation stress (the uniaxial step's two fits)
-CHART_KEYS = ("s", "rho_s", "nu", "nu_elastic", "ratio", "error")
+CHART_KEYS = ("s", "rho_s", "nu", "nu_elastic", "ratio", "crack_initiation", "error",
+              "window_error")
+#: crack initiation below this fraction of Cu is flagged in the chart's picture (rocks crack
+#: from about 30-50 % of their peak in the laboratory)
+EARLY_CRACKS = 0.3
 #: the chart key of each UCS fit
 NU_KEY = {"window": "nu", "elastic": "nu_elastic"}
 
 
-def save_chart(rec: dict) -> Path:
+def save_chart(rec: dict, merge: bool = False) -> Path:
     """Store the study record ``rec`` as the shipped chart of its dimension (points trimmed to
-    :data:`CHART_KEYS`); returns the path."""
+    :data:`CHART_KEYS`); with ``merge``, add its points to the shipped chart instead (a point
+    of the same ``(s, rho_s)`` replaced; the structure, friction and specimen must be the
+    same). Returns the path."""
     chart = {k: rec[k] for k in ("dim", "structure", "mu", "specimen", "bounds")}
     chart["command"] = f"geodem study reach --dim {rec['dim']} -o DIR --save"
     chart["points"] = [{k: p[k] for k in CHART_KEYS if k in p} for p in rec["points"]]
+    old = shipped_chart(rec["dim"]) if merge else None
+    if old is not None:
+        same = ("structure", "mu", "specimen")
+        if any(old[k] != chart[k] for k in same):
+            raise ValueError(f"cannot merge: the stored chart was measured with another "
+                             f"{', '.join(k for k in same if old[k] != chart[k])}")
+        new = {(p["s"], p["rho_s"]) for p in chart["points"]}
+        chart["points"] = sorted([p for p in old["points"] if (p["s"], p["rho_s"]) not in new]
+                                 + chart["points"], key=lambda p: (p["s"], p["rho_s"]))
+        chart["bounds"] = _bounds([p for p in chart["points"] if "ratio" in p])
+        s_v = ",".join(f"{v:g}" for v in sorted({p["s"] for p in rec["points"]}))
+        r_v = ",".join(f"{v:g}" for v in sorted({p["rho_s"] for p in rec["points"]}))
+        chart["command"] = (old["command"] + f"; geodem study reach --dim {rec['dim']} --s "
+                            f"{s_v} --rho {r_v} -o DIR --save --merge")
     dest = Path(__file__).with_name(f"reach_{rec['dim']}d.json")
     dest.write_text(json.dumps(chart, indent=1) + "\n")
     return dest
@@ -206,14 +244,20 @@ def outside_region(targets: dict, dim: int, structure: dict, tolerances: dict,
             f"region')")
 
 
+def plot_chart(path, rec):
+    """The (Cu / Tu, nu) chart of a study record or a stored chart as a PNG at ``path``."""
+    _plot(path, rec)
+    return path
+
+
 def _plot(path, rec):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ok = [p for p in rec["points"] if "ratio" in p]
-    fig, ax = plt.subplots(figsize=(6.5, 4.6))
+    ok = [p for p in rec["points"] if "nu" in p]
+    fig, ax = plt.subplots(figsize=(8.6, 4.6))
     rhos = sorted({p["rho_s"] for p in ok})
     for s in sorted({p["s"] for p in ok}):
         sel = sorted((p for p in ok if p["s"] == s), key=lambda p: p["rho_s"])
@@ -225,18 +269,22 @@ def _plot(path, rec):
         if sel:
             ax.annotate(f"rho_s {rho:g}", (sel[-1]["ratio"], sel[-1]["nu"]), fontsize=7,
                         textcoords="offset points", xytext=(3, -9), color="0.4")
-    el = [p for p in ok if "nu_elastic" in p]
-    if el:
-        ax.scatter([p["ratio"] for p in el], [p["nu_elastic"] for p in el], s=22,
-                   facecolors="none", edgecolors="k", lw=0.7,
-                   label="elastic fit (below crack initiation)")
+    el = [p for p in rec["points"] if "nu_elastic" in p]
+    early = [p for p in el if p.get("crack_initiation", 1.0) < EARLY_CRACKS]
+    late = [p for p in el if p not in early]
+    for sel, colour, label in ((late, "k", "elastic fit (below crack initiation)"),
+                               (early, "C3", f"elastic fit, cracks before "
+                                             f"{100 * EARLY_CRACKS:.0f} % of Cu")):
+        if sel:
+            ax.scatter([p["ratio"] for p in sel], [p["nu_elastic"] for p in sel], s=22,
+                       facecolors="none", edgecolors=colour, lw=0.7, label=label)
     ax.add_patch(plt.Rectangle((5, 0.05), 25, 0.30, fill=False, ls="--", color="k", lw=0.8))
     ax.text(5.2, 0.355, "goal: Cu/Tu 5-30, nu 0.05-0.35", fontsize=8)
     ax.set_xscale("log")
     ax.set_xlabel("Cu / Tu (UCS / direct tension)")
     ax.set_ylabel("nu: 10-50 % window (dots), elastic fit (circles)")
     ax.set_title(f"reachable region, {rec['dim']}-D isotropic packing (mu {rec['mu']:.2f})")
-    ax.legend(fontsize="x-small", loc="best")
+    ax.legend(fontsize="x-small", loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
