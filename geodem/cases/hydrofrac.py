@@ -84,6 +84,7 @@ from geodem.cases.common import frames_gif, needs_model, read_rows, write_csv
 from geodem.workflow.material import material_problems
 from geodem.cases.landslide import CoarsenSpec
 from geodem.workflow.models import BuiltModel, state_bytes_per_element
+from geodem.workflow.errors import RunFailure
 from geodem.workflow.schema import F, Int, ModelBase, Name, Strict, StepBase, register_model, \
     register_step
 from geodem.workflow.animation import gif_writer_missing, label_map, legend_outside, pick_frames, \
@@ -969,6 +970,11 @@ class PoreFlow(StepBase):
     group: Name = F("all", description="Elements forming the pore network")
     fluid: PoreFluidSpec = F(default_factory=PoreFluidSpec, description="The fluid (first "
                                                                           "pore_flow step)")
+    flow: Literal["linear", "radial"] = F(
+        "linear", description="How the permeability is read from the flux: linear (from the "
+                              "inlet across the model to the outlet: Darcy over the distance "
+                              "between the groups' centroids) or radial (injection into a "
+                              "borehole, the outlet around it: Thiem's solution)")
 
     @model_validator(mode="after")
     def _one(self):
@@ -998,7 +1004,6 @@ class PoreFlow(StepBase):
         return max(1, int(math.ceil(self.duration / plan.dt - 1e-9)))
 
     def execute(self, ctx):
-        from geodem.core import groups as grp
         from geodem.fields.pore import PoreField
 
         sim = ctx.sim
@@ -1018,6 +1023,7 @@ class PoreFlow(StepBase):
         elif not ctx.resumed:
             field.set_bc("inlet", pressure=self.p_in)
             field.set_bc("outlet", pressure=self.p_out)
+        flow_geometry(st, self.inlet, self.outlet, self.flow, field.t)  # refuses before running
         total = self.planned_steps(ctx.plan)
         chunk = max(1, total // self.samples)
         path = ctx.out_dir / f"pore_flow_{ctx.step.name}.csv"
@@ -1057,25 +1063,18 @@ class PoreFlow(StepBase):
         q_in, q_out = rows[-1][2], rows[-1][3]
         dp = self.p_in - self.p_out
         K = 0.5 * (q_in + q_out) / dp if dp != 0 else None
-        # permeability: q mu L / (rho A dP), L between the two groups' centroids, A the model's
-        # cross-section normal to that direction (2-D: width x thickness)
-        st = ctx.state
-        a, b = grp.members(st, self.inlet), grp.members(st, self.outlet)
-        axis = st.x[b].mean(axis=0) - st.x[a].mean(axis=0)
-        L = float(np.linalg.norm(axis))
-        u = axis / L if L > 0 else np.eye(st.dim)[0]
-        ext = st.x.max(axis=0) - st.x.min(axis=0) + 2.0 * float(st.r.mean())
-        if st.dim == 2:
-            width = float(abs(np.array([-u[1], u[0]]) @ ext))
-            A = width * field.t
-        else:
-            A = float(np.prod(ext)) / max(float(abs(u @ ext)), 1e-300)
         rho = field.c_f + field.k_f * 0.5 * (self.p_in + self.p_out)
-        perm = K * field.viscosity * L / (rho * A) if K is not None and A > 0 else None
+        geo = flow_geometry(ctx.state, self.inlet, self.outlet, self.flow, field.t)
+        perm = K * field.viscosity * geo["length"] / (rho * geo["area"]) \
+            if K is not None and geo["area"] > 0 else None
+        grad = gradient_permeability(ctx.state, field, self.inlet, self.flow, geo,
+                                     0.5 * (q_in + q_out), rho)
         res = {"mass_flux_in": q_in, "mass_flux_out": q_out,
                "flux_mismatch": abs(q_in - q_out) / max(abs(q_in), 1e-300),
-               "hydraulic_conductance": K, "permeability": perm, "flow_length": L,
-               "flow_area": A, "pressure_drop": dp, "stopped_by": reason,
+               "hydraulic_conductance": K, "permeability": perm, "flow": self.flow,
+               "flow_length": geo["length"], "flow_area": geo["area"], **grad,
+               **{k: geo[k] for k in ("inlet_radius", "outlet_radius") if k in geo},
+               "pressure_drop": dp, "stopped_by": reason,
                "fluid_mass_balance_rel_error": field.mass_balance_error(),
                "fluid": field.summary()}
         ctx.summary.update({k: res[k] for k in ("mass_flux_in", "mass_flux_out",
@@ -1085,6 +1084,87 @@ class PoreFlow(StepBase):
                 f"K = {K if K is None else f'{K:.4g}'} kg/(s Pa), permeability "
                 f"{perm if perm is None else f'{perm:.4g}'} m^2; stopped by {reason}")
         return res
+
+
+def flow_geometry(st, inlet: str, outlet: str, flow: str, thickness: float) -> dict:
+    """The lengths that turn a hydraulic conductance ``K = q / dP`` [kg/(s Pa)] into a
+    permeability ``k = K mu length / (rho area)`` [m^2].
+
+    * ``linear``: ``length`` = the distance between the inlet's and the outlet's centroids,
+      ``area`` = the model's cross-section normal to that direction (2-D: width x
+      ``thickness``). Refused (RunFailure) when the centroids lie within two mean diameters:
+      then the outlet surrounds the inlet and the flow is radial.
+    * ``radial`` (Thiem 1906; Bear 1972, section 7.2): the inlet's centroid is the centre,
+      ``r_in`` and ``r_out`` the mean distances of the inlet's and the outlet's elements from
+      it; 2-D ``q = 2 pi k t rho dP / (mu ln(r_out / r_in))``, so ``length = ln(r_out /
+      r_in)``, ``area = 2 pi t``; 3-D (spherical) ``q = 4 pi k rho dP / (mu (1/r_in -
+      1/r_out))``, so ``length = 1/r_in - 1/r_out``, ``area = 4 pi``."""
+    from geodem.core import groups as grp
+
+    a, b = st.x[grp.members(st, inlet)], st.x[grp.members(st, outlet)]
+    d_mean = 2.0 * float(st.r.mean())
+    axis = b.mean(axis=0) - a.mean(axis=0)
+    L = float(np.linalg.norm(axis))
+    if flow == "radial":
+        c = a.mean(axis=0)
+        r_in = float(np.linalg.norm(a - c, axis=1).mean())
+        r_out = float(np.linalg.norm(b - c, axis=1).mean())
+        if not r_out > r_in > 0:
+            raise RunFailure(f"pore_flow flow: radial needs the outlet {outlet!r} around the "
+                             f"inlet {inlet!r}: their mean distances from the inlet's centre "
+                             f"are {r_out:.4g} and {r_in:.4g} m")
+        if st.dim == 2:
+            return {"length": math.log(r_out / r_in), "area": 2.0 * math.pi * thickness,
+                    "inlet_radius": r_in, "outlet_radius": r_out}
+        return {"length": 1.0 / r_in - 1.0 / r_out, "area": 4.0 * math.pi,
+                "inlet_radius": r_in, "outlet_radius": r_out}
+    if L < 2.0 * d_mean:
+        raise RunFailure(f"pore_flow flow: linear needs the outlet {outlet!r} across the "
+                         f"model from the inlet {inlet!r}, but their centroids are {L:.3g} m "
+                         f"apart (< 2 d_mean): the outlet surrounds the inlet; allowed: "
+                         f"flow: radial")
+    u = axis / L
+    ext = st.x.max(axis=0) - st.x.min(axis=0) + 2.0 * float(st.r.mean())
+    if st.dim == 2:
+        area = float(abs(np.array([-u[1], u[0]]) @ ext)) * thickness
+    else:
+        area = float(np.prod(ext)) / max(float(abs(u @ ext)), 1e-300)
+    return {"length": L, "area": area, "axis": u.tolist()}
+
+
+def gradient_permeability(st, field, inlet: str, flow: str, geo: dict, q: float,
+                          rho: float) -> dict:
+    """Permeability from the steady pressure inside the rock, as from pressure taps: the free
+    pores' pressures fitted by least squares to the steady solution of the flow, then
+    ``k = q mu / (rho area |slope|)`` with ``q`` the mass flux [kg/s]. Linear: ``P = A + B s``
+    (``s`` along the inlet-outlet axis; ``area`` the cross-section); radial 2-D (Thiem):
+    ``P = A + B ln r``, ``area = 2 pi t``; radial 3-D: ``P = A + B / r``, ``area = 4 pi``
+    (``r`` from the inlet's centroid). Independent of where the held pores end, which the
+    flux-based ``permeability`` must assume. Returns ``permeability_gradient`` [m^2] and
+    ``pressure_fit_r2`` (both None without enough free pores)."""
+    from geodem.core import groups as grp
+
+    P = np.asarray(field.P, float)
+    free = np.asarray(field.held) < 0
+    if free.sum() < 3 or q <= 0:
+        return {"permeability_gradient": None, "pressure_fit_r2": None}
+    cen = st.x[field.cells].mean(axis=1)[free]
+    c = st.x[grp.members(st, inlet)].mean(axis=0)
+    if flow == "radial":
+        r = np.linalg.norm(cen - c, axis=1)
+        s = np.log(r) if st.dim == 2 else -1.0 / r  # dP/ds = -q mu / (rho area k)
+    else:
+        u = np.asarray(geo["axis"], float)
+        s = (cen - c) @ u
+    A = np.column_stack([np.ones_like(s), s])
+    coef, *_ = np.linalg.lstsq(A, P[free], rcond=None)
+    res = P[free] - A @ coef
+    r2 = 1.0 - float(res @ res) / max(float(((P[free] - P[free].mean()) ** 2).sum()), 1e-300)
+    slope = -float(coef[1])
+    area = geo["area"] if flow == "linear" else (2.0 * math.pi * field.t if st.dim == 2
+                                                   else 4.0 * math.pi)
+    k = q * field.viscosity / (rho * area * slope) if slope > 0 else None
+    return {"permeability_gradient": k, "pressure_fit_r2": r2}
 
 
 # ============================================================================ io helpers

@@ -1,7 +1,7 @@
 """Model ``scene``: a user's own bonded model composed from parts in YAML.
 
-A scene is a **domain** (a box, a polygon in 2-D, or the ground under a terrain) filled with
-a close-packed lattice of one element diameter (``fill: lattice``: triangular in 2-D, FCC in
+A scene is a **domain** (a box, a polygon or a disc in 2-D, or the ground under a terrain)
+filled with a close-packed lattice of one element diameter (``fill: lattice``: triangular in 2-D, FCC in
 3-D; the lattice starts half an element inside the lower corner, every element lies within the
 bounding box, and in a polygon element centres lie inside it), a random packing deposited under
 gravity (``random``) or the material's own specimen packing, cemented (``specimen``: a library
@@ -261,7 +261,7 @@ class Scene(ModelBase):
     dim: Literal[2, 3] = F(2, description="Dimension")
     d: float = F(..., unit="m", gt=0, description="Element diameter (lattice spacing; random "
                                                   "and specimen fills: the mean diameter)")
-    domain: Shape = F(..., description="The domain: a box, or a polygon in 2-D")
+    domain: Shape = F(..., description="The domain: a box, or a polygon or a disc in 2-D")
     fill: Literal["lattice", "random", "specimen"] = F(
         "lattice", description="Fill: 'lattice' (close-packed, diameter d), 'random' (a "
                                "packing deposited under gravity, diameters d (1 +- "
@@ -328,6 +328,9 @@ class Scene(ModelBase):
         if s.polygon is not None:
             v = np.asarray(s.polygon, float)
             return v.min(axis=0), v.max(axis=0)
+        if s.disc is not None:
+            c = np.asarray(s.disc.center, float)
+            return c - s.disc.radius, c + s.disc.radius
         return None
 
     def _counts(self):
@@ -384,9 +387,10 @@ class Scene(ModelBase):
     def check(self, cfg):
         out = []
         dom = self.domain
-        if (dom.disc is not None or dom.below is not None or dom.above is not None
-                or dom.band is not None):
-            out.append((("domain",), "the domain is a box, a polygon (2-D) or a terrain"))
+        if ((dom.disc is not None and self.dim != 2) or dom.below is not None
+                or dom.above is not None or dom.band is not None):
+            out.append((("domain",), "the domain is a box, a polygon or a disc (2-D) or a "
+                                     "terrain"))
         out += dom.problems(self.dim, ("domain",))
         if dom.terrain is not None:
             out += self._terrain_problems()
@@ -457,12 +461,12 @@ class Scene(ModelBase):
         return out + group_problems(self.groups, self.dim)
 
     def _specimen_problems(self, cfg):
-        """A specimen fill packs and cements one material in a box or polygon domain."""
+        """A specimen fill packs and cements one material in a box, polygon or disc domain."""
         from geodem.workflow.material import material_problems
 
         if self.domain.terrain is not None:
-            return [(("fill",), "a specimen fill packs a box or a polygon domain; allowed for a "
-                                "terrain: lattice, random")]
+            return [(("fill",), "a specimen fill packs a box, a polygon or a disc domain; "
+                                "allowed for a terrain: lattice, random")]
         out = []
         for name, mat, path in self.slots():
             if mat is not None and mat != self.material:

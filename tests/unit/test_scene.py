@@ -1,5 +1,6 @@
 """Model ``scene``: a domain filled with a close-packed lattice, materials by ordered regions,
 joints across regions and groups; counts checked by hand on tiny scenes."""
+import math
 import tempfile
 from pathlib import Path
 
@@ -99,6 +100,14 @@ def test_a_polygon_domain_keeps_the_centres_inside():
     assert 0.4 * 252 < st.n < 0.6 * 502  # about half the box's 502
 
 
+def test_a_disc_domain_keeps_the_centres_inside():
+    st = _build(domain={"disc": {"center": [0.3, 0.3], "radius": 0.15}}).state
+    r = np.linalg.norm(st.x - [0.3, 0.3], axis=1)
+    assert r.max() <= 0.15 + 1e-9 and r.max() > 0.15 - 0.02  # filled to its rim
+    # the lattice's areal density 2 / (sqrt 3 d^2) over pi R^2: 204 elements
+    assert st.n == pytest.approx(math.pi * 0.15 ** 2 * 2 / (math.sqrt(3) * 0.02 ** 2), rel=0.05)
+
+
 def test_a_3d_box_is_an_fcc_block():
     st = _build(dim=3, d=0.05, domain={"box": {"min": [0, 0, 0], "max": [0.3, 0.3, 0.3]}}).state
     # interior elements touch 12 others: the most bonds any element has
@@ -126,7 +135,9 @@ def test_a_3d_box_is_an_fcc_block():
      "regions[0].material: a specimen fill cements one material"),
     ({"fill": "specimen", "d": 10.0, "material": "sand",
       "domain": {"terrain": {"raster": "workflows/data/hill.tif"}}},
-     "fill: a specimen fill packs a box or a polygon domain; allowed for a terrain"),
+     "fill: a specimen fill packs a box, a polygon or a disc domain; allowed for a terrain"),
+    ({"dim": 3, "domain": {"disc": {"center": [0.3, 0.3, 0.3], "radius": 0.1}}},
+     "domain: the domain is a box, a polygon or a disc (2-D) or a terrain"),
 ])
 def test_bad_scenes_are_refused_with_the_field(model, where):
     with pytest.raises(WorkflowError) as exc:
