@@ -123,7 +123,9 @@ def cement(state: State, gap=None, element_params=None, *, d_ref=None, rho=None,
     element, 2 x bonds / n), ``interior_coordination`` (the same over the elements inside the
     bounding box inset by one ``d_max``: free of the surface deficit), ``porosity`` (Monte-Carlo estimate inside the bounding box inset by
     one ``d_max``), ``packing_fraction``, ``max_overlap`` (fraction of the smaller radius),
-    ``unbalanced_ratio``, ``steps``, ``dt``."""
+    ``unbalanced_ratio``, ``balance_rounds`` (standard balances run, at most ``max_rounds``),
+    ``balanced`` (``unbalanced_ratio < tol``: False when ``max_rounds`` ran out first),
+    ``steps``, ``dt``."""
     from geodem.core.engine import Simulation
 
     if element_params is None:
@@ -181,7 +183,8 @@ def cement(state: State, gap=None, element_params=None, *, d_ref=None, rho=None,
             "interior_coordination": interior,
             "porosity": 1.0 - pf, "packing_fraction": pf,
             "max_overlap": float(max_overlap(st.x, st.r, st.nbr)[0]),
-            "unbalanced_ratio": float(ratio),
+            "unbalanced_ratio": float(ratio), "balance_rounds": rounds,
+            "balanced": bool(ratio < tol),
             "steps": rounds * timestep.standard_balance_steps(n_across), "dt": st.dt,
             "gap": gap}
 
