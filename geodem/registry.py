@@ -36,11 +36,12 @@ BUILTINS: dict[str, tuple[str, ...]] = {
                  "geodem.workflow.monitoring",  # monitor, pressure: generic, any model
                  "geodem.workflow.excavation",  # excavate, weaken
                  "geodem.workflow.waves",   # wave_source: a plane wave through an absorbing base
+                 "geodem.workflow.porefluid",  # pore_flow: linear or radial, any model
                  "geodem.cases.uniaxial",   # specimen, uniaxial
                  "geodem.cases.brazilian",  # brazilian_disc, brazilian, direct_tension
                  "geodem.cases.triaxial",   # triaxial_box, triaxial
                  "geodem.cases.thermal",    # thermal models and steps
-                 "geodem.cases.hydrofrac",  # pore-fluid models and steps
+                 "geodem.cases.hydrofrac",  # hydrofrac_plate, hydraulic_fracturing
                  "geodem.cases.collapse",   # granular column collapse
                  "geodem.cases.seismic",    # valley_amplification (on a scene + wave_source)
                  "geodem.cases.landslide",  # landslide from an elevation raster
