@@ -84,7 +84,7 @@ from geodem.workflow.material import material_problems
 from geodem.cases.landslide import CoarsenSpec
 from geodem.workflow.models import BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import F, Int, ModelBase, Name, Strict, StepBase, register_model, \
-    register_step
+    register_step, time_steps
 from geodem.workflow.animation import gif_writer_missing, label_map, legend_outside, pick_frames, \
     pyplot
 
@@ -710,8 +710,7 @@ class HydraulicFracturing(StepBase):
         return self.confine_balances * timestep.standard_balance_steps(n_across)
 
     def planned_steps(self, plan):
-        return self._confine_steps(plan.n_across) + \
-            max(1, int(math.ceil(self.duration / plan.dt - 1e-9)))
+        return self._confine_steps(plan.n_across) + time_steps(plan.dt, duration=self.duration)
 
     # ------------------------------------------------------------------ execution
     def execute(self, ctx):

@@ -11,7 +11,7 @@ import numpy as np
 from pydantic import model_validator
 
 from geodem.workflow.errors import RunFailure
-from geodem.workflow.schema import F, Int, Name, Strict, StepBase, register_step
+from geodem.workflow.schema import F, Int, Name, Strict, StepBase, register_step, time_steps
 
 __all__ = ["PoreFluidSpec", "PoreFlow", "flow_geometry", "gradient_permeability"]
 
@@ -94,9 +94,7 @@ class PoreFlow(StepBase):
         return out
 
     def planned_steps(self, plan):
-        if self.nsteps is not None:
-            return int(self.nsteps)
-        return max(1, int(math.ceil(self.duration / plan.dt - 1e-9)))
+        return time_steps(plan.dt, self.nsteps, self.duration)
 
     def execute(self, ctx):
         from geodem.fields.pore import PoreField
@@ -162,8 +160,8 @@ class PoreFlow(StepBase):
         geo = flow_geometry(ctx.state, self.inlet, self.outlet, self.flow, field.t)
         perm = K * field.viscosity * geo["length"] / (rho * geo["area"]) \
             if K is not None and geo["area"] > 0 else None
-        grad = gradient_permeability(ctx.state, field, self.inlet, self.flow, geo,
-                                     0.5 * (q_in + q_out), rho)
+        grad = gradient_permeability(ctx.state, field, self.flow, geo, 0.5 * (q_in + q_out),
+                                     rho)
         res = {"mass_flux_in": q_in, "mass_flux_out": q_out,
                "flux_mismatch": abs(q_in - q_out) / max(abs(q_in), 1e-300),
                "hydraulic_conductance": K, "permeability": perm, "flow": self.flow,
@@ -193,7 +191,10 @@ def flow_geometry(st, inlet: str, outlet: str, flow: str, thickness: float) -> d
       ``r_in`` and ``r_out`` the mean distances of the inlet's and the outlet's elements from
       it; 2-D ``q = 2 pi k t rho dP / (mu ln(r_out / r_in))``, so ``length = ln(r_out /
       r_in)``, ``area = 2 pi t``; 3-D (spherical) ``q = 4 pi k rho dP / (mu (1/r_in -
-      1/r_out))``, so ``length = 1/r_in - 1/r_out``, ``area = 4 pi``."""
+      1/r_out))``, so ``length = 1/r_in - 1/r_out``, ``area = 4 pi``.
+
+    Also ``centre`` (the inlet's centroid) and, for ``linear``, ``axis`` (the unit vector to
+    the outlet's centroid): the frame :func:`gradient_permeability` fits the pressures in."""
     from geodem.core import groups as grp
 
     a, b = st.x[grp.members(st, inlet)], st.x[grp.members(st, outlet)]
@@ -208,11 +209,10 @@ def flow_geometry(st, inlet: str, outlet: str, flow: str, thickness: float) -> d
             raise RunFailure(f"pore_flow flow: radial needs the outlet {outlet!r} around the "
                              f"inlet {inlet!r}: their mean distances from the inlet's centre "
                              f"are {r_out:.4g} and {r_in:.4g} m")
+        radii = {"inlet_radius": r_in, "outlet_radius": r_out, "centre": c}
         if st.dim == 2:
-            return {"length": math.log(r_out / r_in), "area": 2.0 * math.pi * thickness,
-                    "inlet_radius": r_in, "outlet_radius": r_out}
-        return {"length": 1.0 / r_in - 1.0 / r_out, "area": 4.0 * math.pi,
-                "inlet_radius": r_in, "outlet_radius": r_out}
+            return {"length": math.log(r_out / r_in), "area": 2.0 * math.pi * thickness, **radii}
+        return {"length": 1.0 / r_in - 1.0 / r_out, "area": 4.0 * math.pi, **radii}
     if L < 2.0 * d_mean:
         raise RunFailure(f"pore_flow flow: linear needs the outlet {outlet!r} across the "
                          f"model from the inlet {inlet!r}, but their centroids are {L:.3g} m "
@@ -224,39 +224,33 @@ def flow_geometry(st, inlet: str, outlet: str, flow: str, thickness: float) -> d
         area = float(abs(np.array([-u[1], u[0]]) @ ext)) * thickness
     else:
         area = float(np.prod(ext)) / max(float(abs(u @ ext)), 1e-300)
-    return {"length": L, "area": area, "axis": u.tolist()}
+    return {"length": L, "area": area, "axis": u, "centre": a.mean(axis=0)}
 
 
-def gradient_permeability(st, field, inlet: str, flow: str, geo: dict, q: float,
-                          rho: float) -> dict:
+def gradient_permeability(st, field, flow: str, geo: dict, q: float, rho: float) -> dict:
     """Permeability from the steady pressure inside the rock, as from pressure taps: the free
     pores' pressures fitted by least squares to the steady solution of the flow, then
     ``k = q mu / (rho area |slope|)`` with ``q`` the mass flux [kg/s]. Linear: ``P = A + B s``
     (``s`` along the inlet-outlet axis; ``area`` the cross-section); radial 2-D (Thiem):
     ``P = A + B ln r``, ``area = 2 pi t``; radial 3-D: ``P = A + B / r``, ``area = 4 pi``
-    (``r`` from the inlet's centroid). Independent of where the held pores end, which the
-    flux-based ``permeability`` must assume. Returns ``permeability_gradient`` [m^2] and
-    ``pressure_fit_r2`` (both None without enough free pores)."""
-    from geodem.core import groups as grp
-
+    (``r`` from the inlet's centroid); ``geo`` is :func:`flow_geometry`'s. Independent of
+    where the held pores end, which the flux-based ``permeability`` must assume. Returns
+    ``permeability_gradient`` [m^2] and ``pressure_fit_r2`` (both None without enough free
+    pores)."""
     P = np.asarray(field.P, float)
     free = np.asarray(field.held) < 0
     if free.sum() < 3 or q <= 0:
         return {"permeability_gradient": None, "pressure_fit_r2": None}
-    cen = st.x[field.cells].mean(axis=1)[free]
-    c = st.x[grp.members(st, inlet)].mean(axis=0)
+    cen = st.x[field.cells].mean(axis=1)[free] - geo["centre"]
     if flow == "radial":
-        r = np.linalg.norm(cen - c, axis=1)
+        r = np.linalg.norm(cen, axis=1)
         s = np.log(r) if st.dim == 2 else -1.0 / r  # dP/ds = -q mu / (rho area k)
     else:
-        u = np.asarray(geo["axis"], float)
-        s = (cen - c) @ u
+        s = cen @ geo["axis"]
     A = np.column_stack([np.ones_like(s), s])
     coef, *_ = np.linalg.lstsq(A, P[free], rcond=None)
     res = P[free] - A @ coef
     r2 = 1.0 - float(res @ res) / max(float(((P[free] - P[free].mean()) ** 2).sum()), 1e-300)
     slope = -float(coef[1])
-    area = geo["area"] if flow == "linear" else (2.0 * math.pi * field.t if st.dim == 2
-                                                   else 4.0 * math.pi)
-    k = q * field.viscosity / (rho * area * slope) if slope > 0 else None
+    k = q * field.viscosity / (rho * geo["area"] * slope) if slope > 0 else None
     return {"permeability_gradient": k, "pressure_fit_r2": r2}

@@ -335,6 +335,14 @@ MODELS: Registry = Registry("model type", builtins="workflow", decorator="regist
                             on_change=_workflow_changed)
 
 
+def time_steps(dt: float, nsteps=None, duration=None) -> int:
+    """Time steps of a step given as ``nsteps`` or as a simulated ``duration`` [s] at the time
+    step ``dt`` (at least 1; a duration a round-off short of a whole step count is that count)."""
+    if nsteps is not None:
+        return int(nsteps)
+    return max(1, int(math.ceil(duration / dt - 1e-9)))
+
+
 class StepBase(Strict):
     """Base of every step kind.
 

@@ -43,6 +43,7 @@ from geodem.workflow.schema import (
     STEPS,
     StepBase,
     register_step,
+    time_steps,
     unknown_group,
 )
 
@@ -95,9 +96,7 @@ class Run(StepBase):
         return self
 
     def planned_steps(self, plan):
-        if self.nsteps is not None:
-            return int(self.nsteps)
-        return max(1, int(math.ceil(self.duration / plan.dt - 1e-9)))
+        return time_steps(plan.dt, self.nsteps, self.duration)
 
     def execute(self, ctx):
         from geodem.core import timestep

@@ -35,7 +35,8 @@ import numpy as np
 from pydantic import model_validator
 
 from geodem.workflow.models import SIDES
-from geodem.workflow.schema import F, Int, Name, StepBase, register_step, unknown_group
+from geodem.workflow.schema import F, Int, Name, StepBase, register_step, time_steps, \
+    unknown_group
 
 
 def wave_field(sim):
@@ -144,7 +145,7 @@ class WaveSource(StepBase):
         return Pulse(self.pulse, f, self.amplitude, self.cycles)
 
     def planned_steps(self, plan):
-        return max(1, int(math.ceil(self.duration / plan.dt - 1e-9)))
+        return time_steps(plan.dt, duration=self.duration)
 
     def execute(self, ctx):
         from geodem.core import groups as grp

@@ -367,3 +367,12 @@ def test_a_step_too_long_to_run_is_refused(tmp_path, line, value, field):
     assert "allowed: at most 1e+12 per step" in e["msg"]
     assert one_error(validate(write(tmp_path, BLOCK), "--set", "steps.1.nsteps=1e13"))["file"] \
         == "--set steps.1.nsteps=1e13"
+
+
+def test_time_steps_of_a_count_or_a_duration():
+    from geodem.workflow.schema import time_steps
+
+    assert time_steps(1e-3, nsteps=7) == 7
+    assert time_steps(1e-3, duration=0.0105) == 11  # a partial step counts
+    assert time_steps(0.1, duration=0.3) == 3  # 0.3 / 0.1 = 2.9999999999999996: not 4
+    assert time_steps(1.0, duration=1e-9) == 1
