@@ -373,6 +373,45 @@ def info(
                   f"{g['compute_capability']}", highlight=False)
 
 
+@app.command("library")
+@_guard
+def library_cmd(
+    dim: Annotated[Optional[int], typer.Option(
+        "--dim", min=2, max=3, help="Only this dimension (default: both).")] = None,
+    markdown: Annotated[bool, typer.Option(
+        "--markdown", help="Print markdown tables (as docs/calibration.md quotes them).")] = False,
+):
+    """The material library: each material's lab values and its stored calibrations (2-D and
+    3-D), each measured value with its error against the lab value, the UCS fit, the
+    iterations, the Brazilian check (strength / Tu) and when and how long it ran."""
+    from geodem.materials_library import calibration_markdown, calibration_rows
+
+    con = _out()
+    for d in ([dim] if dim else [2, 3]):
+        if markdown:
+            sys.stdout.write(f"{d}-D:\n\n{calibration_markdown(d)}\n")
+            continue
+        t = Table(title=f"{d}-D calibrations (geodem calibrate NAME --dim {d} --save)",
+                  title_justify="left")
+        for col in ("material", "fit", "iter.", "E [GPa]", "nu", "Cu [MPa]", "Tu [MPa]",
+                    "Braz. / Tu"):
+            t.add_column(col)
+        for r in calibration_rows(d):
+            rec = r["record"]
+            if not rec:
+                t.add_row(r["name"], "[red]none[/]", *[""] * 6)
+                continue
+            m, e = rec["measured"], r["errors"]
+            t.add_row(r["name"], rec.get("specimen", {}).get("fit", "window"),
+                      f"{rec.get('best_iteration', rec['iterations'])}/{rec['iterations']}"
+                      + ("" if rec["converged"] else " [red]not converged[/]"),
+                      f"{m['E'] / 1e9:.3g} ({e['E']:+.1%})", f"{m['nu']:.3f} ({e['nu']:+.3f})",
+                      f"{m['Cu'] / 1e6:.3g} ({e['Cu']:+.1%})",
+                      f"{m['Tu'] / 1e6:.3g} ({e['Tu']:+.1%})",
+                      f"{(rec.get('brazilian') or {}).get('over_target', float('nan')):.2f}")
+        con.print(t)
+
+
 # ----------------------------------------------------------------------------- bench
 @app.command()
 @_guard
@@ -607,9 +646,10 @@ RollingFrictionOpt = Annotated[Optional[float], typer.Option(
 
 
 FitOpt = Annotated[Optional[str], typer.Option(
-    "--fit", help="How the UCS test fits E and nu: 'window' (10-50 % of the peak) or "
-                  "'elastic' (the part of it below the crack-initiation stress; "
-                  "docs/calibration.md, 'Elastic constants before the cracks').")]
+    "--fit", help="How the UCS test fits E and nu: 'elastic' (default: the part of "
+                  "10-50 % of the peak below the crack-initiation stress; "
+                  "docs/calibration.md, 'Elastic constants before the cracks') or 'window' "
+                  "(all of 10-50 % of the peak, cracks and all).")]
 
 
 def _rotation_structure(bond_moment, rolling_friction) -> dict:
@@ -718,7 +758,7 @@ def calibrate_cmd(
                                ucs_size=size, seed=seed, iterations=iterations,
                                backend=backend, prefer=prefer, structure=structure,
                                check_reach=not force, friction=friction,
-                               packings=packings, fit=fit or "window")
+                               packings=packings, fit=fit or "elastic")
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
     if not force:

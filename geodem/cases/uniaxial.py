@@ -174,10 +174,11 @@ class Uniaxial(PlatenTest):
                                 description="E and nu are fitted between these fractions of "
                                             "the peak stress (pre-peak)")
     fit: Literal[FITS] = F(
-        "window", description="'window': E and nu over the whole fit_window; 'elastic': "
-                              "over its part below the crack-initiation stress (the last "
-                              "stress before crack_fraction of the bonds has broken). Both "
-                              "are in the results ('window', 'elastic')")
+        "elastic", description="'elastic': E and nu over the part of fit_window below the "
+                               "crack-initiation stress (the last stress before "
+                               "crack_fraction of the bonds has broken), the constants of "
+                               "the intact rock; 'window': over the whole fit_window, cracks "
+                               "and all. Both are in the results ('window', 'elastic')")
     crack_fraction: float = F(0.005, gt=0, lt=1,
                               description="Fraction of the bonds broken that marks crack "
                                           "initiation")

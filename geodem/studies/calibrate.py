@@ -218,10 +218,10 @@ class CalibrationSpec:
     # their mean: the material rather than one packing (docs/calibration.md, "How much one
     # packing decides"), at that many times the cost
     packings: int = 1
-    # how the UCS test fits E and nu (the uniaxial step's ``fit``): 'window' (10-50 % of the
-    # peak) or 'elastic' (its part below the crack-initiation stress; docs/calibration.md,
-    # "Elastic constants before the cracks")
-    fit: str = "window"
+    # how the UCS test fits E and nu (the uniaxial step's ``fit``): 'elastic' (the part of
+    # the 10-50 % window below the crack-initiation stress; docs/calibration.md, "Elastic
+    # constants before the cracks") or 'window' (the whole window, cracks and all)
+    fit: str = "elastic"
 
     def __post_init__(self):
         if self.dim not in (2, 3):
@@ -807,6 +807,8 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         "best_iteration": best["iteration"],
         "iterations": len(history),
         "wall_time_s": wall,
+        "date": time.strftime("%Y-%m-%d", time.gmtime()),
+        "threads": _numba_threads(),
         "element": best["element"],
         "reachable": reachable,
         "brazilian": brazilian,
@@ -877,9 +879,13 @@ def calibration_block(summary: dict) -> dict:
         "rel_errors": {k: round(float(v), 5) for k, v in summary["rel_errors"].items()},
         "converged": bool(summary["converged"]),
         "iterations": int(summary["iterations"]),
+        "best_iteration": int(summary["best_iteration"]),
         "notes": list(summary["notes"]),
         "specimen": summary["specimen"],
     }
+    if "date" in summary:  # when and how long: the library tables quote them
+        block["run"] = {"date": summary["date"], "wall_time_s": round(float(
+            summary["wall_time_s"]), 1), "threads": summary.get("threads")}
     b = summary.get("brazilian")
     if b:
         block["brazilian"] = {"tensile_strength": float(b["tensile_strength"]),
@@ -895,6 +901,15 @@ def calibration_block(summary: dict) -> dict:
                                   "sigma3": float(f["sigma3"]), "peak_0": float(f["peak_0"]),
                                   "peak_c": None if f["peak_c"] is None else float(f["peak_c"])}
     return {f"{summary['dim']}d": block}
+
+
+def _numba_threads() -> int | None:
+    """The numba thread count the measurements ran on (None without numba)."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+    return int(numba.get_num_threads())
 
 
 def save_calibration(path, summary: dict) -> None:

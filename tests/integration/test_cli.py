@@ -38,6 +38,17 @@ def test_info_json():
     assert data["versions"]["geodem"]
 
 
+def test_library_prints_every_rock_and_both_dimensions():
+    from geodem.materials_library import list_materials
+
+    res = invoke("library", "--markdown")
+    assert res.exit_code == 0, res.output
+    assert "2-D:" in res.stdout and "3-D:" in res.stdout
+    for name in list_materials():
+        assert res.stdout.count(f"| {name} (") == 2, name
+    assert invoke("library", "--dim", "4").exit_code == 2
+
+
 def test_bench_json():
     res = invoke("bench", "--sizes", "2000", "--backends", "numba", "--steps", "20", "--json")
     assert res.exit_code == 0, res.output

@@ -132,3 +132,32 @@ def test_model_forbids_extra_in_nested():
     with pytest.raises(Exception, match="doi"):
         Material.model_validate(bad)
     assert Material.model_validate(doc).name == "granite"
+
+
+def test_calibration_table_by_hand(tmp_path):
+    """`geodem library --markdown`: each stored value beside its error against the lab value,
+    relative for E, Cu, Tu and absolute for nu; a material without a record says so."""
+    from geodem.materials_library import calibration_markdown, calibration_rows
+
+    doc = _doc("sandstone")
+    rec = doc["calibrated"]["2d"]
+    rec.update(measured={"E": 15.3e9, "nu": 0.185, "Cu": 72.0e6, "Tu": 4.2e6},
+               converged=True, iterations=4, best_iteration=3,
+               brazilian={"tensile_strength": 4.4e6, "over_target": 1.1,
+                          "crack_start_offset": 0.8},
+               run={"date": "2026-12-04", "wall_time_s": 45.0, "threads": 1})
+    rec["specimen"]["fit"] = "elastic"
+    done = _write(tmp_path, doc, "done.yaml")
+    bare = copy.deepcopy(doc)
+    bare["name"], bare["calibrated"] = "bare", None
+    bare = _write(tmp_path, bare, "bare.yaml")
+    rows = calibration_rows(2, [done, bare])
+    e = rows[0]["errors"]
+    assert e["E"] == pytest.approx(0.02) and e["Cu"] == pytest.approx(-0.04)
+    assert e["Tu"] == pytest.approx(0.05) and e["nu"] == pytest.approx(-0.015)
+    assert rows[1]["record"] is None
+    text = calibration_markdown(2, [done, bare])
+    assert ("| sandstone (15 GPa, 0.2, 75 MPa, 4 MPa) | elastic | 3 of 4 (converged) | "
+            "15.3 GPa (+2.0 %) | 0.185 (-0.015) | 72 MPa (-4.0 %) | 4.2 MPa (+5.0 %) | 1.10 | "
+            "2026-12-04, 45 s on 1 thread |") in text
+    assert "| bare (15 GPa, 0.2, 75 MPa, 4 MPa) | no 2-D calibration |" in text
