@@ -46,7 +46,8 @@ def test_calibrate_refuses_before_writing_anything(tmp_path, monkeypatch):
     import geodem.studies.reach as reach
 
     monkeypatch.setattr(reach, "shipped_chart", lambda dim: CHART)
-    spec = CalibrationSpec(targets=dict(ROCK, Cu=30 * ROCK["Tu"]), name="odd")
+    # the hand-made chart holds window-fit points only
+    spec = CalibrationSpec(targets=dict(ROCK, Cu=30 * ROCK["Tu"]), name="odd", fit="window")
     with pytest.raises(UnreachableTarget, match="Cu / Tu = 30 with nu = 0.2 is outside"):
         calibrate(spec, tmp_path / "out")
     assert not (tmp_path / "out").exists()
@@ -72,7 +73,7 @@ def test_an_elastic_fit_is_judged_by_the_elastic_points_only(monkeypatch):
     monkeypatch.setattr(reach, "shipped_chart", lambda dim: elastic)
     with pytest.raises(UnreachableTarget, match="nu = 0.25 is outside"):
         check_reachable(CalibrationSpec(targets=t, name="odd", fit="elastic"))
-    check_reachable(CalibrationSpec(targets=t, name="odd"))  # the window fit reaches it
+    check_reachable(CalibrationSpec(targets=t, name="odd", fit="window"))  # the window fit reaches it
     with pytest.raises(ValueError, match="fit = 'tangent': allowed 'window' or 'elastic'"):
         CalibrationSpec(targets=t, fit="tangent")
 
