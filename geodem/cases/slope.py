@@ -128,7 +128,8 @@ class SlopeStability(StepBase):
             rec["stages"].append(stage)
             failed = stage["displacement"] > self.failure_displacement
             ctx.log(f"F = {factor:g}: {self.watch} moved {stage['displacement']:.4g} m during "
-                    f"the stage (mean), {stage['bonds_broken']} bonds broke"
+                    f"the stage (mean), {stage['bonds_broken']} "
+                    f"bond{'' if stage['bonds_broken'] == 1 else 's'} broke"
                     + (": failed" if failed else ""))
             if failed and not rec["failed"]:
                 rec["failed"], rec["failed_at"] = True, float(factor)
