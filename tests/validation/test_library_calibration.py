@@ -1,9 +1,9 @@
 """The long calibrations (slow): `geodem calibrate` of library rocks on real specimens meets E,
 Cu, Tu within 5 % and nu within 0.03 in at most 8 iterations, and the stored calibration is
 what it finds again. The cheap slice in CI is tests/unit/test_calibrate.py (synthetic packings).
-Measured 2026-12-02 (docs/calibration.md, Tu from direct tension, stresses over the
-surface-to-surface width): granite 2-D converged at iteration 2 in 62 s, marble 3-D at
-iteration 4 in 429 s, one shared core each."""
+Measured 2026-12-04 (commit 6d7aae0, docs/calibration.md, the elastic fit, Tu from direct
+tension): granite 2-D converged at iteration 3 in 54 s, marble 3-D at iteration 3 in 145 s, one
+core each."""
 import json
 
 import pytest
@@ -47,9 +47,11 @@ def _user_rock(tmp_path, name, values):
 
 
 @pytest.mark.parametrize("name, values", [
-    # measured 2026-12-02 (2-D): iteration 2, 46 s; 3-D: iteration 3, 231 s
+    # measured 2026-12-04 (2-D, elastic fit): iteration 2, 39 s (window fit, 2026-12-02: iteration
+    # 2, 46 s; 3-D: iteration 3, 231 s)
     ("hard_granite", {"E": 70e9, "nu": 0.22, "Cu": 250e6, "Tu": 12e6, "mu_i": 1.0, "rho": 2700.0}),
-    # measured: iteration 4, 57 s; 3-D: iteration 5, 237 s
+    # measured 2026-12-04 (2-D, elastic fit): iteration 4, 47 s (window fit: iteration 4, 57 s;
+    # 3-D: iteration 5, 237 s)
     ("weak_sandstone", {"E": 8e9, "nu": 0.25, "Cu": 30e6, "Tu": 2.5e6, "mu_i": 0.6,
                         "rho": 2200.0}),
 ])
