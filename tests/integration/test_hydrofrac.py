@@ -14,7 +14,8 @@ docs/hydraulic_fracturing.md):
   (``tensile_strength_from: direct_tension``) within 30 % too;
 * confined (sigma_H = 6 MPa along x, sigma_h = 3 MPa): the dominant arm within 15 deg of
   sigma_H (measured 8.7 deg); breakdown within 30 % of ``3 sigma_h - sigma_H + T`` = 7.07 MPa:
-  NOT met, measured 10.47 MPa (1.48 x), a strict xfail;
+  NOT met at the default 8 d_mean hole, measured 10.47 MPa (1.48 x), a strict xfail; met at
+  a 16 d_mean hole (1.27 x, its own slow test);
 * fluid mass balance < 1e-6 in all (measured ~1e-16).
 """
 import json
@@ -315,3 +316,23 @@ def test_confined_fracture_follows_sigma_H(confined):
 def test_confined_breakdown_within_30_percent_of_hubbert_willis(confined):
     assert confined["breakdown_pressure"] == pytest.approx(
         confined["hubbert_willis_pressure"], rel=0.30)
+
+
+# the borehole of 16 d_mean (a 1.6 m graded plate, 7,903 elements, ~8 min on one core)
+HOLE_16 = ["model.hole_radius=0.08", "model.size=1.6", "model.coarsen.band=0.04",
+           "model.coarsen.transition=0.04", "steps.injection.gif=false"]
+
+
+@pytest.mark.slow
+@pytest.mark.validation
+def test_confined_breakdown_within_30_percent_of_hubbert_willis_at_a_16_d_mean_hole(tmp_path):
+    """The confined case with the borehole resolved twice as finely as the workflow's default
+    (docs/hydraulic_fracturing.md, "Why the confined case is high"): measured 2026-12-04
+    (commit 6d7aae0, seed 0) 8.96 MPa against 3 sigma_h - sigma_H + T = 7.07 MPa, 1.27 x (the
+    8 d_mean default: 1.48 x, the strict xfail above); 4 arms, the dominant 16.7 deg from
+    sigma_H."""
+    code, s = run_workflow(HFC, tmp_path / "run", sets=HOLE_16, echo=False, progress=False)
+    assert code == 0 and s["status"] == "ok", s.get("error")
+    assert s["n_elements"] > 7000
+    assert s["breakdown_pressure"] == pytest.approx(s["hubbert_willis_pressure"], rel=0.30)
+    assert s["fluid_mass_balance_rel_error"] < 1e-6
