@@ -144,9 +144,9 @@ def _check_backends(backends) -> list[str]:
 
 def _threads(backend: str):
     if backend == "numba":
-        import numba
+        from geodem.threads import numba_threads
 
-        return int(numba.get_num_threads())
+        return numba_threads()
     if backend == "numpy":
         return 1
     return None  # GPU: not a thread count

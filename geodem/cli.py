@@ -278,8 +278,6 @@ def _gpu_info() -> list:
 
 def collect_info() -> dict:
     """Everything ``geodem info`` prints, as a dict."""
-    import numba
-
     from geodem.backends import ALLOWED, BACKENDS, _load_all
     from geodem.bench import available_memory
 
@@ -314,7 +312,7 @@ def collect_info() -> dict:
         "cpu_count": os.cpu_count(),
         "cpus_usable": affinity,
         "memory_available_gib": None if mem is None else round(mem / 2**30, 1),
-        "numba_threads": int(numba.get_num_threads()),
+        "numba_threads": threads.numba_threads(),
         "numba_threading_layer": threads.describe(),
         "backends": backends,
         "allowed_backends": list(ALLOWED),
@@ -384,7 +382,8 @@ def library_cmd(
     """The material library: each material's lab values and its stored calibrations (2-D and
     3-D), each measured value with its error against the lab value, the UCS fit, the
     iterations, the Brazilian check (strength / Tu) and when and how long it ran."""
-    from geodem.materials_library import calibration_markdown, calibration_rows
+    from geodem.materials_library import (CALIBRATION_COLUMNS, calibration_cells,
+                                          calibration_markdown, calibration_rows)
 
     con = _out()
     for d in ([dim] if dim else [2, 3]):
@@ -393,22 +392,10 @@ def library_cmd(
             continue
         t = Table(title=f"{d}-D calibrations (geodem calibrate NAME --dim {d} --save)",
                   title_justify="left")
-        for col in ("material", "fit", "iter.", "E [GPa]", "nu", "Cu [MPa]", "Tu [MPa]",
-                    "Braz. / Tu"):
+        for col in CALIBRATION_COLUMNS:
             t.add_column(col)
         for r in calibration_rows(d):
-            rec = r["record"]
-            if not rec:
-                t.add_row(r["name"], "[red]none[/]", *[""] * 6)
-                continue
-            m, e = rec["measured"], r["errors"]
-            t.add_row(r["name"], rec.get("specimen", {}).get("fit", "window"),
-                      f"{rec.get('best_iteration', rec['iterations'])}/{rec['iterations']}"
-                      + ("" if rec["converged"] else " [red]not converged[/]"),
-                      f"{m['E'] / 1e9:.3g} ({e['E']:+.1%})", f"{m['nu']:.3f} ({e['nu']:+.3f})",
-                      f"{m['Cu'] / 1e6:.3g} ({e['Cu']:+.1%})",
-                      f"{m['Tu'] / 1e6:.3g} ({e['Tu']:+.1%})",
-                      f"{(rec.get('brazilian') or {}).get('over_target', float('nan')):.2f}")
+            t.add_row(*(escape(c) for c in calibration_cells(r)))
         con.print(t)
 
 

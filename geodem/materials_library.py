@@ -197,16 +197,20 @@ def load_material(name_or_path: str | Path) -> Material:
         raise MaterialError(_format_errors(path, exc)) from None
 
 
+#: the columns of :func:`calibration_cells` (``geodem library``, docs/calibration.md)
+CALIBRATION_COLUMNS = ("material (lab E, nu, Cu, Tu)", "fit", "best iteration", "E", "nu",
+                       "Cu (UCS)", "Tu (direct tension)", "Brazilian / Tu", "run")
+
+
 def calibration_rows(dim: int, names: list[str] | None = None) -> list[dict]:
     """One row per library material (``names``, default all) for its stored ``calibrated.<dim>d``
-    record: lab ``targets``, ``measured``, relative errors (absolute for nu), the UCS fit, the
-    iterations, the Brazilian check (strength / Tu) and the run (date, wall time, threads);
-    ``record`` None where the material has no calibration for ``dim``."""
+    record: lab ``targets``, the ``record`` (None where the material has no calibration for
+    ``dim``) and its ``errors`` against the lab values (relative; absolute for nu)."""
     rows = []
     for name in names or list_materials():
         m = load_material(name)
         rec = (m.calibrated or {}).get(f"{dim}d")
-        row = {"name": m.name, "targets": m.values(), "record": rec}
+        row = {"name": m.name, "dim": dim, "targets": m.values(), "record": rec}
         if rec:
             meas = rec["measured"]
             row["errors"] = {k: (meas[k] - row["targets"][k] if k == "nu" else
@@ -215,33 +219,35 @@ def calibration_rows(dim: int, names: list[str] | None = None) -> list[dict]:
     return rows
 
 
+def calibration_cells(row: dict) -> list[str]:
+    """The :data:`CALIBRATION_COLUMNS` of one :func:`calibration_rows` row as text: each value
+    with its error against the lab value, the UCS fit, the iterations, the Brazilian check and
+    the run (date, wall time, threads)."""
+    t, rec = row["targets"], row["record"]
+    lab = (f"{row['name']} ({_g(t['E'] / 1e9)} GPa, {t['nu']:g}, {_g(t['Cu'] / 1e6)} MPa, "
+           f"{_g(t['Tu'] / 1e6)} MPa)")
+    if not rec:
+        return [lab, f"no {row['dim']}-D calibration"] + [""] * 7
+    m, e = rec["measured"], row["errors"]
+    state = "converged" if rec["converged"] else "not converged"
+    run = rec.get("run") or {}
+    when = (f"{run['date']}, {run['wall_time_s']:.0f} s on {run['threads']} thread"
+            f"{'s' if run.get('threads') != 1 else ''}" if run else "")
+    cells = [lab, rec.get("specimen", {}).get("fit", "window"),
+             f"{rec.get('best_iteration', rec['iterations'])} of {rec['iterations']} ({state})",
+             f"{_g(m['E'] / 1e9)} GPa ({e['E']:+.1%})", f"{m['nu']:.3f} ({e['nu']:+.3f})",
+             f"{_g(m['Cu'] / 1e6)} MPa ({e['Cu']:+.1%})", f"{_g(m['Tu'] / 1e6)} MPa ({e['Tu']:+.1%})",
+             f"{(rec.get('brazilian') or {}).get('over_target', float('nan')):.2f}", when]
+    return [c.replace("%)", " %)") for c in cells]
+
+
 def calibration_markdown(dim: int, names: list[str] | None = None) -> str:
     """The stored calibrations of ``dim`` as a markdown table (docs/calibration.md, "Measured:
-    the library"): each value with its error against the lab value (relative; absolute for
-    nu)."""
-    head = ("| material (lab E, nu, Cu, Tu) | fit | best iteration | E | nu | Cu (UCS) | "
-            "Tu (direct tension) | Brazilian / Tu | run |")
-    out = [head, "|" + "---|" * 9]
-    for r in calibration_rows(dim, names):
-        t, rec = r["targets"], r["record"]
-        lab = (f"{r['name']} ({_g(t['E'] / 1e9)} GPa, {t['nu']:g}, {_g(t['Cu'] / 1e6)} MPa, "
-               f"{_g(t['Tu'] / 1e6)} MPa)")
-        if not rec:
-            out.append(f"| {lab} | no {dim}-D calibration |" + " |" * 7)
-            continue
-        m, e, sp = rec["measured"], r["errors"], rec.get("specimen", {})
-        best = rec.get("best_iteration", rec["iterations"])
-        state = "converged" if rec["converged"] else "not converged"
-        braz = rec.get("brazilian") or {}
-        run = rec.get("run") or {}
-        when = (f"{run['date']}, {run['wall_time_s']:.0f} s on {run['threads']} thread"
-                f"{'s' if run.get('threads') != 1 else ''}" if run else "")
-        out.append(
-            f"| {lab} | {sp.get('fit', 'window')} | {best} of {rec['iterations']} ({state}) | "
-            f"{_g(m['E'] / 1e9)} GPa ({e['E']:+.1%}) | {m['nu']:.3f} ({e['nu']:+.3f}) | "
-            f"{_g(m['Cu'] / 1e6)} MPa ({e['Cu']:+.1%}) | {_g(m['Tu'] / 1e6)} MPa "
-            f"({e['Tu']:+.1%}) | {braz.get('over_target', float('nan')):.2f} | {when} |")
-    return "\n".join(out).replace("%)", " %)") + "\n"
+    the library")."""
+    lines = ["| " + " | ".join(CALIBRATION_COLUMNS) + " |", "|" + "---|" * len(CALIBRATION_COLUMNS)]
+    lines += ["| " + " | ".join(calibration_cells(r)) + " |"
+              for r in calibration_rows(dim, names)]
+    return "\n".join(lines) + "\n"
 
 
 def _g(x: float) -> str:

@@ -54,6 +54,14 @@ def layer() -> str:
     return str(numba.threading_layer())
 
 
+def numba_threads() -> int:
+    """The number of threads numba's parallel loops run on (``NUMBA_NUM_THREADS`` or
+    ``numba.set_num_threads``); imports numba, so call it after :func:`choose`."""
+    import numba
+
+    return int(numba.get_num_threads())
+
+
 def describe() -> dict:
     """The layer in use and where the choice came from (``geodem info``, manifest.json)."""
     chosen_by = user_choice()

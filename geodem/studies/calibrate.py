@@ -69,6 +69,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from geodem import threads
 from geodem.materials import macro_to_micro, per_size
 
 __all__ = ["CalibrationSpec", "UnreachableTarget", "calibrate", "check_reachable",
@@ -808,7 +809,7 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         "iterations": len(history),
         "wall_time_s": wall,
         "date": time.strftime("%Y-%m-%d", time.gmtime()),
-        "threads": _numba_threads(),
+        "threads": threads.numba_threads(),
         "element": best["element"],
         "reachable": reachable,
         "brazilian": brazilian,
@@ -901,15 +902,6 @@ def calibration_block(summary: dict) -> dict:
                                   "sigma3": float(f["sigma3"]), "peak_0": float(f["peak_0"]),
                                   "peak_c": None if f["peak_c"] is None else float(f["peak_c"])}
     return {f"{summary['dim']}d": block}
-
-
-def _numba_threads() -> int | None:
-    """The numba thread count the measurements ran on (None without numba)."""
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return None
-    return int(numba.get_num_threads())
 
 
 def save_calibration(path, summary: dict) -> None:

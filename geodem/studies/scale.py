@@ -221,9 +221,9 @@ def scale_study(out, families=FAMILIES, sizes=DEFAULT_SIZES, backend="numba",
 def _machine() -> dict:
     import platform
 
-    import numba
+    from geodem.threads import numba_threads
 
-    return {"cpu_count": os.cpu_count(), "numba_threads": int(numba.get_num_threads()),
+    return {"cpu_count": os.cpu_count(), "numba_threads": numba_threads(),
             "platform": platform.platform()}
 
 

@@ -11,7 +11,8 @@ import numpy as np
 from pydantic import model_validator
 
 from geodem.workflow.errors import RunFailure
-from geodem.workflow.schema import F, Int, Name, Strict, StepBase, register_step, time_steps
+from geodem.workflow.schema import (F, Int, Name, Strict, StepBase, check_time_span,
+                                    register_step, time_steps)
 
 __all__ = ["PoreFluidSpec", "PoreFlow", "flow_geometry", "gradient_permeability"]
 
@@ -73,8 +74,7 @@ class PoreFlow(StepBase):
 
     @model_validator(mode="after")
     def _one(self):
-        if (self.nsteps is None) == (self.duration is None):
-            raise ValueError("give exactly one of nsteps (time steps) or duration (seconds)")
+        check_time_span(self.nsteps, self.duration)
         return self
 
     def check(self, cfg, groups):

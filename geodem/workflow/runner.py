@@ -1258,9 +1258,9 @@ def _now() -> str:
 
 def _threads(backend: str) -> int:
     if backend == "numba":
-        import numba
+        from geodem.threads import numba_threads
 
-        return int(numba.get_num_threads())
+        return numba_threads()
     if backend == "numpy":
         return 1
     return 0

@@ -335,6 +335,12 @@ MODELS: Registry = Registry("model type", builtins="workflow", decorator="regist
                             on_change=_workflow_changed)
 
 
+def check_time_span(nsteps, duration) -> None:
+    """A step's length is given as exactly one of ``nsteps`` or ``duration`` (ValueError)."""
+    if (nsteps is None) == (duration is None):
+        raise ValueError("give exactly one of nsteps (time steps) or duration (seconds)")
+
+
 def time_steps(dt: float, nsteps=None, duration=None) -> int:
     """Time steps of a step given as ``nsteps`` or as a simulated ``duration`` [s] at the time
     step ``dt`` (at least 1; a duration a round-off short of a whole step count is that count)."""

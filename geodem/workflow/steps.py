@@ -42,6 +42,7 @@ from geodem.workflow.schema import (
     Name,
     STEPS,
     StepBase,
+    check_time_span,
     register_step,
     time_steps,
     unknown_group,
@@ -89,8 +90,7 @@ class Run(StepBase):
 
     @model_validator(mode="after")
     def _one(self):
-        if (self.nsteps is None) == (self.duration is None):
-            raise ValueError("give exactly one of nsteps (time steps) or duration (seconds)")
+        check_time_span(self.nsteps, self.duration)
         if self.damping_ratio is not None and self.standard_damping is not None:
             raise ValueError("give at most one of damping_ratio and standard_damping")
         return self
