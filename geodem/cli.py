@@ -631,6 +631,11 @@ RollingFrictionOpt = Annotated[Optional[float], typer.Option(
                                                  "mu_r of contacts in compression (switches "
                                                  "rotation on).")]
 
+RollingStiffnessOpt = Annotated[Optional[float], typer.Option(
+    "--rolling-stiffness", min=0.0, max=100.0, help="Turning elements whose rolling spring is "
+                                                    "this factor beta x Ks R*^2 (default 1; "
+                                                    "switches rotation on; raises Cu / Tu).")]
+
 
 FitOpt = Annotated[Optional[str], typer.Option(
     "--fit", help="How the UCS test fits E and nu: 'elastic' (default: the part of "
@@ -639,13 +644,19 @@ FitOpt = Annotated[Optional[str], typer.Option(
                   "(all of 10-50 % of the peak, cracks and all).")]
 
 
-def _rotation_structure(bond_moment, rolling_friction) -> dict:
-    """The rotation keys of a micro-structure from --bond-moment / --rolling-friction (empty
-    when neither is given)."""
-    if bond_moment is None and rolling_friction is None:
+def _rotation_structure(bond_moment, rolling_friction, rolling_stiffness=None,
+                        stored: dict | None = None) -> dict:
+    """The rotation keys of a micro-structure from --bond-moment / --rolling-friction /
+    --rolling-stiffness (empty when none is given). A key not given keeps its ``stored``
+    value where the stored micro-structure turns, else its default (0, 0, 1)."""
+    given = {"bond_moment": bond_moment, "rolling_friction": rolling_friction,
+             "rolling_stiffness": rolling_stiffness}
+    if all(v is None for v in given.values()):
         return {}
-    return {"rotation": True, "bond_moment": bond_moment or 0.0,
-            "rolling_friction": rolling_friction or 0.0}
+    base = {"bond_moment": 0.0, "rolling_friction": 0.0, "rolling_stiffness": 1.0}
+    if stored and stored.get("rotation"):
+        base.update({k: stored[k] for k in base if stored.get(k) is not None})
+    return {"rotation": True, **{k: base[k] if v is None else v for k, v in given.items()}}
 
 
 def _phi_text(rec) -> str:
@@ -699,6 +710,7 @@ def calibrate_cmd(
     bond_weibull: BondWeibullOpt = None,
     bond_moment: BondMomentOpt = None,
     rolling_friction: RollingFrictionOpt = None,
+    rolling_stiffness: RollingStiffnessOpt = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
     force: Annotated[bool, typer.Option("--force", help="Calibrate even when the targets lie "
@@ -739,7 +751,7 @@ def calibrate_cmd(
         _fail(f"--d-mean {d_mean:g} m: allowed up to {min(size) / 4:g} m (the specimens are "
               f"{min(size):g} m across and need at least 4 elements)", USER_ERROR)
     structure = {"packing": packing, "bond_gap": bond_gap, "bond_strength_weibull": bond_weibull,
-                 **_rotation_structure(bond_moment, rolling_friction)}
+                 **_rotation_structure(bond_moment, rolling_friction, rolling_stiffness)}
     try:
         spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim, d_mean=d_mean,
                                ucs_size=size, seed=seed, iterations=iterations,
@@ -805,6 +817,7 @@ def rock_cmd(
     bond_weibull: BondWeibullOpt = None,
     bond_moment: BondMomentOpt = None,
     rolling_friction: RollingFrictionOpt = None,
+    rolling_stiffness: RollingStiffnessOpt = None,
     friction: Annotated[bool, typer.Option("--friction", help="Also run the triaxial friction "
                                                               "test (two stages).")] = False,
     packings: Annotated[int, typer.Option("--packings", min=1, max=20, help=(
@@ -836,7 +849,7 @@ def rock_cmd(
             el[key] = value
     if packing == "deposit" and bond_gap is None:
         el.pop("bond_gap", None)  # a bond range belongs to the isotropic recipe
-    el.update(_rotation_structure(bond_moment, rolling_friction))
+    el.update(_rotation_structure(bond_moment, rolling_friction, rolling_stiffness, stored=el))
     sp = cal.get("specimen", {})
     size = tuple(sp.get("ucs_size") or ((0.1, 0.1, 0.2) if dim == 3 else (0.1, 0.2)))
     structure = {k: el[k] for k in STRUCTURE_KEYS if k in el}

@@ -103,13 +103,14 @@ def at_size(scaled: dict, d: float) -> dict:
 #: ``bond_gap x d_mean`` are bonded, then made to touch) and ``bond_strength_weibull`` (the
 #: Weibull modulus of the per-bond strength factors,
 #: :func:`geodem.build.specimen.bond_strength_factors`), and ``rotation`` with
-#: ``rolling_friction`` and ``bond_moment`` (turning elements with rolling resistance and
-#: moment-resisting bonds, :func:`geodem.core.state.enable_rotation`, switched on for the
-#: whole model by the workflow runner). A calibration stores them with the element
+#: ``rolling_friction``, ``bond_moment`` and ``rolling_stiffness`` (turning elements with
+#: rolling resistance, moment-resisting bonds and the rolling spring's factor,
+#: :func:`geodem.core.state.enable_rotation`, switched on for the whole model by the workflow
+#: runner). A calibration stores them with the element
 #: parameters, so every test builds the rock the same way.
 STRUCTURE_KEYS = ("packing", "bond_gap", "bond_strength_weibull", "rotation",
-                  "rolling_friction", "bond_moment")
-ROTATION_KEYS = ("rotation", "rolling_friction", "bond_moment")
+                  "rolling_friction", "bond_moment", "rolling_stiffness")
+ROTATION_KEYS = ("rotation", "rolling_friction", "bond_moment", "rolling_stiffness")
 
 
 def _with_structure(out: dict, source: dict) -> dict:

@@ -198,5 +198,6 @@ class CupyBackend:
         d = self.view
         self.k.energy[self._blocks(), THREADS](d["x"], d["props"], d["nbr"],
                                                d["cstate"], d["fs"], int(self.s.hertz),
-                                               d["e_el"], self.view["mr"])
+                                               d["e_el"], self.view["mr"],
+                                               self.view["rot_props"])
         return self.e_el if self.xp is np else self.e_el.get()

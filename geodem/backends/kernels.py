@@ -151,8 +151,8 @@ def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = 
     Argument order: ``move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt, *EXTRA_MOVE)``,
     ``force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs, brate, q_visc, q_bn,
     q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz, *EXTRA_FORCE)``,
-    ``energy(x, props, nbr, cstate, fs, hertz, e_el, mr)`` with ``EXTRA_MOVE = (w, wa, dth,
-    rfree, inertia, fdash)`` and ``EXTRA_FORCE = EXTRA_MOVE + (mr, bond_moment)``: the arrays of
+    ``energy(x, props, nbr, cstate, fs, hertz, e_el, mr, rot_props)`` with ``EXTRA_MOVE = (w,
+    wa, dth, rfree, inertia, fdash)`` and ``EXTRA_FORCE = EXTRA_MOVE + (mr, rot_props)``: the arrays of
     the options (placeholders for an option that is off: :func:`placeholders`).
 
     The CPU namespace also has ``steps(nsteps, code_t0, code_s0, ...)``: ``nsteps`` whole steps
@@ -189,18 +189,18 @@ def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = 
         @cuda.jit
         def force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                   brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz,
-                  w, wa, dth, rfree, inertia, fdash, mr, mb):
+                  w, wa, dth, rfree, inertia, fdash, mr, rp):
             i = cuda.grid(1)
             if i < x.shape[0]:
                 force_b(i, x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                         fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                        code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr, mb))
+                        code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr, rp))
 
         @cuda.jit
-        def energy(x, props, nbr, cstate, fs, hertz, e_el, mr):
+        def energy(x, props, nbr, cstate, fs, hertz, e_el, mr, rp):
             i = cuda.grid(1)
             if i < x.shape[0]:
-                energy_b(i, x, props, nbr, cstate, fs, hertz, e_el, mr)
+                energy_b(i, x, props, nbr, cstate, fs, hertz, e_el, mr, rp)
 
         @cuda.jit
         def move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
@@ -213,12 +213,12 @@ def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = 
         @cuda.jit
         def force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                       brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s,
-                      hertz, w, wa, dth, rfree, inertia, fdash, mr, mb):
+                      hertz, w, wa, dth, rfree, inertia, fdash, mr, rp):
             k = cuda.grid(1)
             if k < idx.shape[0]:
                 force_b(idx[k], x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                         fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                        code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr, mb))
+                        code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr, rp))
 
         return types.SimpleNamespace(move=move, force=force, energy=energy,
                                      move_idx=move_idx, force_idx=force_idx)
@@ -226,7 +226,7 @@ def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = 
 
 
 EXTRA_MOVE = ("w", "wa", "dth", "rfree", "inertia", "fdash")  # the options' arrays
-EXTRA_FORCE = EXTRA_MOVE + ("mr", "bond_moment")
+EXTRA_FORCE = EXTRA_MOVE + ("mr", "rot_props")
 
 
 def placeholders(xp=None):
@@ -237,4 +237,4 @@ def placeholders(xp=None):
     xp = np if xp is None else xp
     z2 = xp.zeros((1, 1))
     return {"w": z2, "wa": z2, "dth": z2, "rfree": z2, "inertia": xp.zeros(1), "fdash": z2,
-            "mr": xp.zeros((1, 1, 1)), "bond_moment": xp.zeros(1)}
+            "mr": xp.zeros((1, 1, 1)), "rot_props": xp.zeros((1, 2))}

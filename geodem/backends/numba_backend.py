@@ -208,11 +208,11 @@ class NumbaBackend(HostBackend):
         g0, g1, g2 = self._gravity()
         if self._each_once():
             ostart, mirror = self.tables
-            w, wa, dth, rfree, inertia, fdash, mr, mb = extra
+            w, wa, dth, rfree, inertia, fdash, mr, rp = extra
             cstart, spill, inc_start = self.cross
             self.k.force_owner(s.x, s.dx, s.props, s.m, s.nbr, ostart, mirror, s.cstate, s.fs,
                                s.brate, self.buf, cstart, spill, self.slabs, dt, code_t,
-                               code_s, int(s.hertz), dth, mr, mb, self.ahead)
+                               code_s, int(s.hertz), dth, mr, rp, self.ahead)
             self.k.finish(s.v, s.a, s.dx, s.free, s.fload, s.m, s.eta, self.buf, inc_start,
                           s.q_visc, s.q_break_n, s.q_break_s, s.q_fric, s.w_ext, g0, g1, g2, dt,
                           *extra)
@@ -250,6 +250,6 @@ class NumbaBackend(HostBackend):
     def elastic_energy(self):
         s = self.s
         self._sync_partners()
-        mr = self._extra(("mr",))[0]
-        self.k.energy(s.x, s.props, s.nbr, s.cstate, s.fs, int(s.hertz), self.e_el, mr)
+        mr, rp = self._extra(("mr", "rot_props"))
+        self.k.energy(s.x, s.props, s.nbr, s.cstate, s.fs, int(s.hertz), self.e_el, mr, rp)
         return self.e_el

@@ -191,11 +191,12 @@ class NumpyBackend(HostBackend):
         """Torques (N, nr) of the shear forces and the rolling moments, and the rolling heat
         (N, W); updates ``mr`` (geodem.core.law.rolling, whole-matrix form). ``bonded``: the
         contacts bonded after this step's law (they also hold ``bond_moment R* F_b``, ``bf`` =
-        F_b)."""
+        F_b). Rolling spring ``K_r = beta Ks R*^2``, ``beta`` the smaller rolling_stiffness."""
         s = self.s
         ri = s.r[:, None]
         rs = series_array(ri, s.r[j])
-        kr = series_array(s.ks[:, None], s.ks[j]) * rs * rs
+        beta = np.minimum(s.rolling_stiffness[:, None], s.rolling_stiffness[j])
+        kr = beta * series_array(s.ks[:, None], s.ks[j]) * rs * rs
         lim = np.minimum(s.mu_r[:, None], s.mu_r[j]) * rs * np.maximum(-fn, 0.0)
         mb = np.minimum(s.bond_moment[:, None], s.bond_moment[j])
         lim = lim + np.where(bonded & (mb > 0.0), mb * rs * np.where(mb > 0.0, bf, 0.0), 0.0)
@@ -252,7 +253,8 @@ class NumpyBackend(HostBackend):
             en = np.where(bonded | comp, 0.5 * kn * xn * xn, 0.0)
         if s.rotation:
             rs = series_array(s.r[:, None], s.r[j])
-            kr = series_array(s.ks[:, None], s.ks[j]) * rs * rs
+            beta = np.minimum(s.rolling_stiffness[:, None], s.rolling_stiffness[j])
+            kr = beta * series_array(s.ks[:, None], s.ks[j]) * rs * rs
             e = e + _spring((s.mr * s.mr).sum(-1), kr)
         self.e_el[:] = 0.5 * _colsum(np.where(valid, e + en, 0.0))
         return self.e_el

@@ -26,7 +26,7 @@ The step is two passes over elements (velocity Verlet, PHYSICS.md section 3):
    steps over a list of awake elements keep ``force_body``.
 
 ``ROT`` (compile-time): the elements also turn (``geodem.core.state.enable_rotation``); the
-rotation arrays ``w, wa, dth, rfree, inertia, mr, bond_moment`` are then read and written,
+rotation arrays ``w, wa, dth, rfree, inertia, mr, rot_props`` are then read and written,
 otherwise they are placeholders the compiled code never touches. ``DAMP`` (compile-time):
 contacts in compression get the normal dashpot of
 ``geodem.core.state.enable_contact_damping`` (damping ratio in ``props`` column 7).
@@ -212,15 +212,16 @@ def dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, rz, kni, props, m, dt):
     return fd
 
 
-def roll(i, j, k, fn, csn, nx, ny, nz, ri, rj, ksi, props, brate, dth, mr, mb):
+def roll(i, j, k, fn, csn, nx, ny, nz, ri, rj, ksi, props, brate, dth, mr, rp):
     # ROT: the rolling resistance of entry k of row i; stores the new moment, returns it
-    # (moment on i [N m]; 2-D: about z only) and its heat. A bond (state csn after this step's
-    # law) also holds bond_moment R* F_b, F_b = rate min(kn xb) its tensile strength
+    # (moment on i [N m]; 2-D: about z only) and its heat. Rolling spring K_r = beta Ks R*^2
+    # (beta: rp column 1). A bond (state csn after this step's law) also holds
+    # bond_moment R* F_b (rp column 0), F_b = rate min(kn xb) its tensile strength
     rs = series(ri, rj)
-    kr = series(ksi, props[j, 2]) * rs * rs
+    kr = min(rp[i, 1], rp[j, 1]) * series(ksi, props[j, 2]) * rs * rs
     lim = min(props[i, 6], props[j, 6]) * rs * max(-fn, 0.0)
     if csn == BONDED:
-        mbij = min(mb[i], mb[j])
+        mbij = min(rp[i, 0], rp[j, 0])
         if mbij > 0.0:
             lim += mbij * rs * brate[i, k] * min(props[i, 1] * props[i, 3],
                                                  props[j, 1] * props[j, 3])
@@ -243,7 +244,7 @@ def force_body(i, x, v, a, dx, free, fload, props, m, eta,
                g0, g1, g2, dt, code_t, code_s, hertz, ext):
     # the options' arrays come as one tuple: seven more arguments of the inlined body made
     # the plain kernel 15-25 % slower (measured), one tuple costs nothing
-    w, wa, dth, rfree, inertia, fdash, mr, mb = ext
+    w, wa, dth, rfree, inertia, fdash, mr, rp = ext
     xi0, xi1, xi2, di0, di1, di2 = own_position(i, x, dx)
     pi = own_params(i, props)
     ri, kni, ksi = pi[0], pi[1], pi[2]  # the rotation and the dashpot need these
@@ -283,7 +284,7 @@ def force_body(i, x, v, a, dx, free, fload, props, m, eta,
         if ROT:
             # the shear force acts at the contact point R_i n; rolling resistance on top
             mx, my, mz, eqr = roll(i, j, k, fn, csn, nx, ny, nz, ri, rj, ksi, props, brate,
-                                   dth, mr, mb)
+                                   dth, mr, rp)
             if DIM == 3:
                 t0 += ri * (ny * sz - nz * sy) + mx
                 t1 += ri * (nz * sx - nx * sz) + my
@@ -299,7 +300,7 @@ def finish_dofs(i, f0, f1, f2, d0, d1, d2, t0, t1, t2, qn, qs, qf,
                 g0, g1, g2, dt, ext):
     # element i's step after its contacts: contact force f, dashpot force d (DAMP), torque t
     # (ROT), and its shares of the contacts' heats qn, qs, qf [J] to book
-    w, wa, dth, rfree, inertia, fdash, mr, mb = ext
+    w, wa, dth, rfree, inertia, fdash, mr, rp = ext
     q_bn[i] += qn
     q_bs[i] += qs
     q_f[i] += qf
@@ -340,7 +341,7 @@ def finish_dofs(i, f0, f1, f2, d0, d1, d2, t0, t1, t2, qn, qs, qf,
     w_ext[i] += we
 
 
-def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr):
+def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr, rp):
     # half of each contact's elastic energy (the other half is booked by j's row)
     e = 0.0
     for k in range(nbr.shape[1]):
@@ -358,7 +359,7 @@ def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr):
                             props[i, 2], props[j, 2], cstate[i, k], hertz)
         if ROT:
             rs = series(props[i, 0], props[j, 0])
-            kr = series(props[i, 2], props[j, 2]) * rs * rs
+            kr = min(rp[i, 1], rp[j, 1]) * series(props[i, 2], props[j, 2]) * rs * rs
             m2 = 0.0
             for d in range(NR):
                 m2 += mr[i, k, d] * mr[i, k, d]
@@ -389,7 +390,7 @@ def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr):
 # slot (``mirror``) when it changes, its shear spring and rolling moment by ``mirror_body``
 # when the partner slots are wanted (``geodem.backends.numba_backend``).
 def owner_body(i, hi, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
-               spill, c, dt, code_t, code_s, hertz, dth, mr, mb):
+               spill, c, dt, code_t, code_s, hertz, dth, mr, rp):
     n = x.shape[0]
     xi0, xi1, xi2, di0, di1, di2 = own_position(i, x, dx)
     pi = own_params(i, props)
@@ -440,7 +441,7 @@ def owner_body(i, hi, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, b
         if ROT:
             # j receives -Fs at -R_j n: torque R_j n x Fs, like i's with R_j; moment -M
             mx, my, mz, eqr = roll(i, j, k, fn, csn, nx, ny, nz, ri, rj, ksi, props, brate,
-                                   dth, mr, mb)
+                                   dth, mr, rp)
             cz = nx * sy - ny * sx
             if DIM == 3:
                 cx = ny * sz - nz * sy
@@ -601,16 +602,16 @@ def cpu_move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
 
 def cpu_force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
               brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz,
-              w, wa, dth, rfree, inertia, fdash, mr, mb):
+              w, wa, dth, rfree, inertia, fdash, mr, rp):
     for i in prange(x.shape[0]):
         force_body(i, x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                    fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                   code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr, mb))
+                   code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr, rp))
 
 
-def cpu_energy(x, props, nbr, cstate, fs, hertz, e_el, mr):
+def cpu_energy(x, props, nbr, cstate, fs, hertz, e_el, mr, rp):
     for i in prange(x.shape[0]):
-        energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr)
+        energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr, rp)
 
 
 # the same passes over a list of elements only (the others are asleep: geodem.fields.freeze)
@@ -623,11 +624,11 @@ def cpu_move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
 
 def cpu_force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                   brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s,
-                  hertz, w, wa, dth, rfree, inertia, fdash, mr, mb):
+                  hertz, w, wa, dth, rfree, inertia, fdash, mr, rp):
     for k in prange(idx.shape[0]):
         force_body(idx[k], x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                    fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                   code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr, mb))
+                   code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr, rp))
 
 
 # each contact once: slabs of ``slab`` consecutive elements in parallel (owner_body). The
@@ -635,7 +636,7 @@ def cpu_force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
 # ``ahead`` > 0: prefetch the partners of element i + ahead (prefetch_partners) and the rows
 # of element i + 4 ahead (prefetch_rows); 0: none.
 def cpu_force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
-                    cstart, spill, nslab, dt, code_t, code_s, hertz, dth, mr, mb, ahead):
+                    cstart, spill, nslab, dt, code_t, code_s, hertz, dth, mr, rp, ahead):
     n = x.shape[0]
     for t in prange(nslab):
         hi = (t + 1) * n // nslab
@@ -646,15 +647,15 @@ def cpu_force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf
             if ahead > 0 and i + 4 * ahead < hi:
                 prefetch_rows(i + 4 * ahead, nbr, cstate, brate, fs)
             owner_body(i, hi, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
-                       spill, cstart[i], dt, code_t, code_s, hertz, dth, mr, mb)
+                       spill, cstart[i], dt, code_t, code_s, hertz, dth, mr, rp)
 
 
 def cpu_finish(v, a, dx, free, fload, m, eta, buf, inc_start, q_visc, q_bn,
-               q_bs, q_f, w_ext, g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr, mb):
+               q_bs, q_f, w_ext, g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr, rp):
     for i in prange(v.shape[0]):
         finish_body(i, v, a, dx, free, fload, m, eta, buf, inc_start,
                     q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt,
-                    (w, wa, dth, rfree, inertia, fdash, mr, mb))
+                    (w, wa, dth, rfree, inertia, fdash, mr, rp))
 
 
 def cpu_mirror(nbr, ostart, mirror, cstate, fs, mr):
@@ -671,12 +672,12 @@ def cpu_mirror(nbr, ostart, mirror, cstate, fs, mr):
 def cpu_steps(nsteps, code_t0, code_s0, x, v, a, dx, free, fload, props, m, eta, nbr, ostart,
               mirror, cstate, fs, brate, buf, cstart, spill, inc_start, nslab, q_visc,
               q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, hertz, ahead, w, wa, dth, rfree, inertia,
-              fdash, mr, mb):
+              fdash, mr, rp):
     for k in range(nsteps):
         move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt, w, wa, dth, rfree, inertia,
              fdash)
         force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
-                    cstart, spill, nslab, dt, code_t0 + 2 * k, code_s0 + 2 * k, hertz, dth, mr, mb,
+                    cstart, spill, nslab, dt, code_t0 + 2 * k, code_s0 + 2 * k, hertz, dth, mr, rp,
                     ahead)
         finish(v, a, dx, free, fload, m, eta, buf, inc_start, q_visc, q_bn,
-               q_bs, q_f, w_ext, g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr, mb)
+               q_bs, q_f, w_ext, g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr, rp)

@@ -58,9 +58,12 @@ def load_state(path, with_arrays: bool = False):
         more = {k: z[k].copy() for k in z.files if k not in names and k != "__meta__"}
     kw.update({k: meta.get(k, _DEFAULTS.get(k)) for k in _SCALARS})
     kw["groups"] = meta["groups"]
-    if kw.get("w") is not None and kw.get("bond_moment") is None:
-        # checkpoints written before moment-resisting bonds: none
-        kw["bond_moment"] = np.zeros(kw["w"].shape[0])
+    if kw.get("w") is not None and kw.get("rot_props") is None:
+        # checkpoints written before the rolling parameters were one array: their bond moment
+        # (none before moment-resisting bonds) and the default rolling stiffness 1
+        n = kw["w"].shape[0]
+        mb = more.pop("bond_moment", np.zeros(n))
+        kw["rot_props"] = np.stack([mb, np.ones(n)], axis=1)
     if with_arrays:
         return State(**kw), meta["extra"], more
     return State(**kw), meta["extra"]

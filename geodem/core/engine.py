@@ -60,7 +60,7 @@ def check_layout(state) -> None:
                 cstate=((n, w), "i"), fs=((n, w, d), "f8"), brate=((n, w), "f4"))
     if state.rotation:
         want.update({k: ((n, nr), "f8") for k in ("w", "wa", "dth", "rfree")})
-        want.update(inertia=((n,), "f8"), bond_moment=((n,), "f8"), mr=((n, w, nr), "f8"))
+        want.update(inertia=((n,), "f8"), rot_props=((n, 2), "f8"), mr=((n, w, nr), "f8"))
     if state.fdash is not None:
         want.update(fdash=((n, d), "f8"))
     for name, (shape, kind) in want.items():
@@ -111,7 +111,8 @@ def validate_state(state) -> None:
               ("xb", 0.0, True), ("fs0", 0.0, True), ("mu", 0.0, True), ("eta", 0.0, True),
               ("mu_r", 0.0, True))
     if state.rotation:
-        checks = checks + (("inertia", 0.0, False), ("bond_moment", 0.0, True))
+        checks = checks + (("inertia", 0.0, False), ("bond_moment", 0.0, True),
+                           ("rolling_stiffness", 0.0, True))
     if state.contact_damping and (state.fdash is None or state.fdash.shape != state.x.shape):
         raise ValueError("contact_damping is on but the state has no dashpot forces; switch it "
                          "on with geodem.core.state.enable_contact_damping")

@@ -46,8 +46,12 @@ translate only, PHYSICS.md section 1). ``nr`` = 1 in 2-D (about z), 3 in 3-D.
     dth          (N, nr)  float64   rotation of the last step [rad]
     rfree        (N, nr)  float64   1.0 free rotation, 0.0 fixed / prescribed (turns at ``w``)
     inertia      (N,)     float64   moment of inertia [kg m^2]
-    bond_moment  (N,)     float64   moment strength of the element's bonds over ``R* F_b``
+    rot_props    (N, 2)   float64   the element's rolling parameters, read and written through
+                                    the named column views:
+    bond_moment  (N,)     view      moment strength of the element's bonds over ``R* F_b``
                                     [-] (0: a bond resists rolling like a broken contact)
+    rolling_stiffness (N,) view     rolling stiffness factor ``beta``: ``K_r = beta K_s R*^2``
+                                    [-] (1: Iwashita & Oda's default)
     mr           (N, W, nr) float64 rolling-resistance moment acting on the row's element [N m]
 
 Contact damping (optional, ``None`` unless :func:`enable_contact_damping` was called)
@@ -66,9 +70,10 @@ ELEMENT_VEC = ("x", "v", "a", "dx", "x_ref", "free", "fload")
 ELEMENT_SCALAR = ("m", "eta")
 PROPS = ("r", "kn", "ks", "xb", "fs0", "mu", "mu_r", "zeta_n")  # columns of ``props``
 PROPS_WIDTH = 8
+ROT_PROPS = ("bond_moment", "rolling_stiffness")  # columns of ``rot_props`` (rotation only)
 ACCUMULATORS = ("q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext")
 ROW_ARRAYS = ("nbr", "cstate", "fs", "brate")
-ROT_ELEMENT = ("w", "wa", "dth", "rfree", "inertia", "bond_moment")  # present only with rotation
+ROT_ELEMENT = ("w", "wa", "dth", "rfree", "inertia", "rot_props")  # present only with rotation
 ROT_ROWS = ("mr",)
 DAMP_ELEMENT = ("fdash",)  # present only with contact damping
 
@@ -123,7 +128,7 @@ class State:
     dth: np.ndarray | None = None
     rfree: np.ndarray | None = None
     inertia: np.ndarray | None = None
-    bond_moment: np.ndarray | None = None
+    rot_props: np.ndarray | None = None  # columns ROT_PROPS
     mr: np.ndarray | None = None
     # contact damping: the net dashpot force of the last force pass (its heat is booked over
     # this step and the next)
@@ -246,6 +251,20 @@ for _c, _name in enumerate(PROPS):
     setattr(State, _name, _prop(_c, _name))
 
 
+def _rot_prop(col: int, name: str):
+    def get(self):
+        return None if self.rot_props is None else self.rot_props[:, col]
+
+    def put(self, value):
+        self.rot_props[:, col] = value
+
+    return property(get, put, doc=f"column {col} of ``rot_props``: {name} (rotation only)")
+
+
+for _c, _name in enumerate(ROT_PROPS):
+    setattr(State, _name, _rot_prop(_c, _name))
+
+
 def new_state(x, r, m, *, dim=None, width=16, kn=0.0, ks=0.0, xb=0.0, fs0=0.0, mu=0.0,
               eta=0.0, mu_r=0.0, zeta_n=0.0) -> State:
     """Allocate a state for elements at ``x`` (N, dim) with radii ``r`` and masses ``m``.
@@ -303,7 +322,8 @@ def inertia_of(state: State) -> np.ndarray:
     return (0.5 if state.dim == 2 else 0.4) * state.m * state.r * state.r
 
 
-def enable_rotation(state: State, mu_r=None, inertia=None, bond_moment=0.0) -> State:
+def enable_rotation(state: State, mu_r=None, inertia=None, bond_moment=0.0,
+                    rolling_stiffness=1.0) -> State:
     """Give every element rotational degrees of freedom (in place; returns ``state``).
 
     Rotation is an option beyond MatDEM's translation-only elements (PHYSICS.md section 1): the
@@ -315,6 +335,8 @@ def enable_rotation(state: State, mu_r=None, inertia=None, bond_moment=0.0) -> S
     a rolling moment up to ``bond_moment R* F_b`` on top of ``mu_r R* |Fn|`` (``F_b`` its tensile
     strength; a parallel bond as wide as the elements has about 0.5 in 3-D and 0.67 in 2-D,
     Potyondy & Cundall 2004); 0 (default): a bond resists rolling like a broken contact.
+    ``rolling_stiffness`` (scalar or (N,), >= 0) is the factor ``beta`` of the rolling spring,
+    ``K_r = beta K_s R*^2`` (default 1: Iwashita & Oda 1998; Jiang et al. 2005 vary it).
     Elements whose translation is entirely fixed or prescribed get a fixed rotation (walls and
     platens do not spin); free them with ``state.rfree``. Calling it again resets the
     angular state.
@@ -325,10 +347,13 @@ def enable_rotation(state: State, mu_r=None, inertia=None, bond_moment=0.0) -> S
     state.inertia = np.ascontiguousarray(
         inertia_of(state) if inertia is None
         else np.broadcast_to(np.asarray(inertia, dtype=np.float64), (n,))).copy()
-    mb = np.asarray(bond_moment, dtype=np.float64)
-    if not (np.isfinite(mb).all() and (mb >= 0.0).all()):
-        raise ValueError(f"bond_moment = {bond_moment!r}: allowed finite values >= 0")
-    state.bond_moment = np.ascontiguousarray(np.broadcast_to(mb, (n,))).copy()
+    state.rot_props = np.zeros((n, len(ROT_PROPS)))
+    for c, (value, name) in enumerate(((bond_moment, "bond_moment"),
+                                       (rolling_stiffness, "rolling_stiffness"))):
+        a = np.asarray(value, dtype=np.float64)
+        if not (np.isfinite(a).all() and (a >= 0.0).all()):
+            raise ValueError(f"{name} = {value!r}: allowed finite values >= 0")
+        state.rot_props[:, c] = np.broadcast_to(a, (n,))
     state.w = np.zeros((n, nr))
     state.wa = np.zeros((n, nr))
     state.dth = np.zeros((n, nr))

@@ -103,8 +103,8 @@ def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> 
 
 def material_rotation(cfg, model) -> dict | None:
     """The rotation option of the materials ``model`` uses (``rotation``, ``rolling_friction``,
-    ``bond_moment`` of their element parameters): None when none asks for it, else
-    ``{"rolling_friction": mu_r, "bond_moment": b}``. Rotation is a property of the whole
+    ``bond_moment``, ``rolling_stiffness`` of their element parameters): None when none asks
+    for it, else ``{"rolling_friction": mu_r, "bond_moment": b, "rolling_stiffness": beta}``. Rotation is a property of the whole
     model (the engine turns every element or none), so its materials must agree; a
     ``BuildError`` names the first that differs."""
     dim = getattr(model, "dim", None)
@@ -118,8 +118,10 @@ def material_rotation(cfg, model) -> dict | None:
             el = specimen_material(cfg, name, dim).element or {}
         except ValueError:
             continue  # the build reports it
+        beta = el.get("rolling_stiffness")
         seen[name] = ((float(el.get("rolling_friction") or 0.0),
-                       float(el.get("bond_moment") or 0.0)) if el.get("rotation") else None)
+                       float(el.get("bond_moment") or 0.0),
+                       1.0 if beta is None else float(beta)) if el.get("rotation") else None)
     wanted = {v for v in seen.values()}
     if wanted <= {None}:
         return None
@@ -127,15 +129,16 @@ def material_rotation(cfg, model) -> dict | None:
         first = next(n for n, v in seen.items() if v != next(iter(seen.values())))
 
         def said(v):
-            return "rotation: false" if v is None else f"mu_r {v[0]:g}, bond_moment {v[1]:g}"
+            return ("rotation: false" if v is None
+                    else f"mu_r {v[0]:g}, bond_moment {v[1]:g}, rolling_stiffness {v[2]:g}")
 
         listed = ", ".join(f"{n!r} ({said(v)})" for n, v in seen.items())
         raise BuildError(("materials", first), "rotation is a property of the whole model (every "
                          f"element turns or none): the materials {listed} differ; allowed: the "
-                         "same rotation, rolling_friction and bond_moment in every material of "
-                         "the model")
-    mu_r, mb = wanted.pop()
-    return {"rolling_friction": mu_r, "bond_moment": mb}
+                         "same rotation, rolling_friction, bond_moment and rolling_stiffness in "
+                         "every material of the model")
+    mu_r, mb, beta = wanted.pop()
+    return {"rolling_friction": mu_r, "bond_moment": mb, "rolling_stiffness": beta}
 
 
 def apply_material_rotation(cfg, built: BuiltModel) -> None:
@@ -151,7 +154,8 @@ def apply_material_rotation(cfg, built: BuiltModel) -> None:
         raise BuildError(("model",), "the model turns its elements already (its own rotation "
                                      "option) and its material asks for rotation too; allowed: "
                                      "one of the two")
-    enable_rotation(built.state, mu_r=rot["rolling_friction"], bond_moment=rot["bond_moment"])
+    enable_rotation(built.state, mu_r=rot["rolling_friction"], bond_moment=rot["bond_moment"],
+                    rolling_stiffness=rot["rolling_stiffness"])
     built.info["rotation"] = rot
 
 

@@ -224,10 +224,15 @@ class _Structure(_MaterialInfo):
                                         "tensile strength; about 0.67 for a 2-D parallel "
                                         "bond as wide as the elements, 0.5 in 3-D); default "
                                         "0: a bond turns freely")
+    rolling_stiffness: Optional[float] = F(
+        None, ge=0, le=100, description="With rotation: factor beta of the rolling spring, "
+                                        "K_r = beta K_s R*^2 (default 1; a stiffer rolling "
+                                        "spring raises the compressive strength far more "
+                                        "than the tensile)")
 
     @model_validator(mode="after")
     def _rotation_options(self):
-        for key in ("rolling_friction", "bond_moment"):
+        for key in ("rolling_friction", "bond_moment", "rolling_stiffness"):
             if getattr(self, key) is not None and not self.rotation:
                 raise ValueError(f"{key} = {getattr(self, key):g} needs rotation: true (the "
                                  "elements must turn to roll)")

@@ -31,13 +31,15 @@ def _ucs(tmp_path, **structure):
 
 
 def test_a_rotating_material_turns_the_specimen_and_holds_the_platens(tmp_path):
-    prep = prepare(_ucs(tmp_path, rotation=True, bond_moment=0.5, rolling_friction=0.1),
-                   backend="numba")
+    prep = prepare(_ucs(tmp_path, rotation=True, bond_moment=0.5, rolling_friction=0.1,
+                        rolling_stiffness=2.0), backend="numba")
     st = prep.built.state
     assert st.rotation
     assert np.all(st.bond_moment == 0.5) and np.all(st.mu_r == 0.1)
+    assert np.all(st.rolling_stiffness == 2.0)
     assert np.all(st.rfree == 1.0)  # the platens are held when the loading starts
-    assert prep.built.info["rotation"] == {"rolling_friction": 0.1, "bond_moment": 0.5}
+    assert prep.built.info["rotation"] == {"rolling_friction": 0.1, "bond_moment": 0.5,
+                                           "rolling_stiffness": 2.0}
 
 
 def test_held_translation_holds_the_rotation_too(tmp_path):
@@ -58,7 +60,7 @@ def test_without_the_option_the_specimen_translates_only(tmp_path):
     assert not prepare(_ucs(tmp_path), backend="numba").built.state.rotation
 
 
-@pytest.mark.parametrize("key", ["bond_moment", "rolling_friction"])
+@pytest.mark.parametrize("key", ["bond_moment", "rolling_friction", "rolling_stiffness"])
 def test_rolling_options_need_rotation(tmp_path, key):
     with pytest.raises(WorkflowError, match=f"{key} = 0.5 needs rotation: true"):
         prepare(_ucs(tmp_path, **{key: 0.5}), backend="numba")
@@ -69,8 +71,12 @@ def test_materials_of_one_model_must_agree_on_rotation():
             "b": ScaledMicroMaterial(**ROCK)}
     cfg = types.SimpleNamespace(materials=mats)
     model = types.SimpleNamespace(dim=2, material_refs=lambda: [(("m",), "a"), (("n",), "b")])
-    with pytest.raises(BuildError, match="'a' \\(mu_r 0, bond_moment 0.5\\), 'b' "
-                                         "\\(rotation: false\\) differ"):
+    with pytest.raises(BuildError, match="'a' \\(mu_r 0, bond_moment 0.5, rolling_stiffness "
+                                         "1\\), 'b' \\(rotation: false\\) differ"):
         material_rotation(cfg, model)
     mats["b"] = ScaledMicroMaterial(**ROCK, rotation=True, bond_moment=0.5)
-    assert material_rotation(cfg, model) == {"rolling_friction": 0.0, "bond_moment": 0.5}
+    assert material_rotation(cfg, model) == {"rolling_friction": 0.0, "bond_moment": 0.5,
+                                             "rolling_stiffness": 1.0}
+    mats["b"] = ScaledMicroMaterial(**ROCK, rotation=True, bond_moment=0.5, rolling_stiffness=3)
+    with pytest.raises(BuildError, match="rolling_stiffness 3\\) differ"):
+        material_rotation(cfg, model)

@@ -150,21 +150,32 @@ def test_numba_matches_numpy_with_moment_bonds(dim):
     assert np.abs(a.mr).max() > 0.0
 
 
-def turned_bond(bond_moment, steps, kn=1e5, xb=1e-5):
+@pytest.mark.parametrize("dim", [2, 3])
+def test_numba_matches_numpy_with_rolling_stiffness(dim):
+    st = _rotating_specimen(300, dim)
+    st.bond_moment[:] = 100.0
+    st.rolling_stiffness[:] = np.linspace(0.5, 4.0, st.n)  # the pair's smaller value counts
+    a = numba_against_numpy(st, ("x", "v", "a", "fs", "w", "wa", "mr", "q_visc", "q_fric",
+                                 "w_ext"))
+    assert np.abs(a.mr).max() > 0.0
+
+
+def turned_bond(bond_moment, steps, kn=1e5, xb=1e-5, beta=1.0):
     """Two touching bonded discs, both held in place; the second turns at a prescribed rate
     (mu_r = 0, no normal force): returns the rolling moment on the first, the rolling
-    stiffness, the bond's moment limit, the angle turned and the friction heat."""
+    stiffness (``beta`` x two shear springs in series x R*^2), the bond's moment limit, the
+    angle turned and the friction heat."""
     x = np.array([[0.0, 0.0], [2.0 * R, 0.0]])
     ks = 0.5 * kn
     st = new_state(x, [R, R], [M, M], kn=kn, ks=ks, xb=xb, fs0=1e12, mu=0.5, width=4)
     st.free[:] = 0.0
     neighbors.rows_from_pairs(st, np.array([0]), np.array([1]), bonded=True)
-    enable_rotation(st, mu_r=0.0, bond_moment=bond_moment)
+    enable_rotation(st, mu_r=0.0, bond_moment=bond_moment, rolling_stiffness=beta)
     st.w[1, 0] = 10.0
     sim = Simulation(st, backend="numba")
     sim.run(steps)
     rs = 0.5 * R  # R* of two equal discs
-    kr = 0.5 * ks * rs * rs  # two shear springs in series, times R*^2
+    kr = beta * 0.5 * ks * rs * rs  # two shear springs in series, times R*^2
     k = int(np.flatnonzero(st.nbr[0] == 1)[0])
     assert st.cstate[0, k] == 1  # still bonded: the moment does not break it
     return (float(st.mr[0, k, 0]), kr, bond_moment * rs * kn * xb, steps * st.dt * 10.0,
@@ -184,6 +195,19 @@ def test_moment_bond_holds_the_rolling_moment_elastically_up_to_its_strength():
     # without moment bonds (bond_moment 0) a bond in no compression holds no moment
     m, *_ = turned_bond(0.0, 50)
     assert m == 0.0
+
+
+def test_rolling_stiffness_scales_the_rolling_spring():
+    """K_r = beta Ks R*^2: at the same turned angle the elastic moment is beta times the
+    default's, and its stored energy M^2 / (2 K_r) beta times too (M = beta K theta)."""
+    m1, kr1, lim, theta, _ = turned_bond(100.0, 50)
+    m4, kr4, _, theta4, q = turned_bond(100.0, 50, beta=4.0)
+    assert theta4 == theta and kr4 == pytest.approx(4.0 * kr1, rel=1e-15)
+    assert m4 == pytest.approx(4.0 * m1, rel=1e-9) and m4 == pytest.approx(kr4 * theta, rel=1e-9)
+    assert kr4 * theta < lim and q == pytest.approx(0.0, abs=1e-18)
+    # beta 0: no rolling spring at all
+    m0, *_ = turned_bond(100.0, 50, beta=0.0)
+    assert m0 == 0.0
 
 
 CUDA_SCRIPT = r"""
@@ -244,6 +268,27 @@ def test_rebuild_and_checkpoint_carry_the_rolling_moments(tmp_path):
         assert np.array_equal(getattr(sim2.state, k), getattr(st, k)), k
 
 
+def test_a_checkpoint_from_before_the_rolling_stiffness_loads_with_beta_one(tmp_path):
+    """Checkpoints written before ``rot_props`` stored ``bond_moment`` alone (and before that
+    nothing): they load with their bond moment and the default rolling stiffness 1."""
+    from geodem.core.checkpoint import load_state
+
+    st = _rotating_specimen(50, 2)
+    st.bond_moment[:] = 0.7
+    path = tmp_path / "new.npz"
+    Simulation(st, backend="numpy").save(path)
+    with np.load(path) as z:
+        old = {k: z[k] for k in z.files if k != "rot_props"}
+    old["bond_moment"] = np.full(st.n, 0.7)
+    np.savez(tmp_path / "old.npz", **old)
+    back, _ = load_state(tmp_path / "old.npz")
+    assert np.all(back.bond_moment == 0.7) and np.all(back.rolling_stiffness == 1.0)
+    del old["bond_moment"]
+    np.savez(tmp_path / "older.npz", **old)
+    back, _ = load_state(tmp_path / "older.npz")
+    assert np.all(back.bond_moment == 0.0) and np.all(back.rolling_stiffness == 1.0)
+
+
 def test_bad_rotation_input_is_refused():
     st = disc_on_floor(2, 0.0)
     st.inertia[0] = 0.0
@@ -254,6 +299,12 @@ def test_bad_rotation_input_is_refused():
         Simulation(st, backend="numba")
     with pytest.raises(ValueError, match="bond_moment = -1.*>= 0"):
         enable_rotation(disc_on_floor(2, 0.0), bond_moment=-1.0)
+    with pytest.raises(ValueError, match="rolling_stiffness = nan.*finite values >= 0"):
+        enable_rotation(disc_on_floor(2, 0.0), rolling_stiffness=float("nan"))
+    st = disc_on_floor(2, 0.0)
+    st.rolling_stiffness[0] = -2.0
+    with pytest.raises(ValueError, match="rolling_stiffness of element 0.*>= 0"):
+        Simulation(st, backend="numba")
     from geodem.build.walls import append_elements
     with pytest.raises(ValueError, match="enable_rotation / enable_contact_damping"):
         append_elements(disc_on_floor(2, 0.0), np.zeros((1, 2)), r=R, m=M, kn=1.0)
