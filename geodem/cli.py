@@ -632,9 +632,9 @@ RollingFrictionOpt = Annotated[Optional[float], typer.Option(
                                                  "rotation on).")]
 
 RollingStiffnessOpt = Annotated[Optional[float], typer.Option(
-    "--rolling-stiffness", min=0.0, max=100.0, help="Turning elements whose rolling spring is "
-                                                    "this factor beta x Ks R*^2 (default 1; "
-                                                    "switches rotation on; raises Cu / Tu).")]
+    "--rolling-stiffness", min=0.0, max=16.0, help="Turning elements whose rolling spring is "
+                                                   "this factor beta x Ks R*^2 (default 1; "
+                                                   "switches rotation on; raises Cu / Tu).")]
 
 
 FitOpt = Annotated[Optional[str], typer.Option(
