@@ -132,7 +132,7 @@ def _line(line):
     return p[0], (p[1] - p[0]) / length, length
 
 
-def _horizontal(x, line):
+def plan_xy(x, line):
     """Local horizontal (x, y) of model points: x[:, :2] in 3-D; p0 + s u in 2-D."""
     x = np.asarray(x, float)
     if x.shape[-1] == 3:
@@ -170,7 +170,7 @@ def band_size_field(top, d, factor, band, transition, *, sliding_surface=None, l
 
     def size(x):
         x = np.asarray(x, float)
-        h = _horizontal(x, line)
+        h = plan_xy(x, line)
         zt = ftop(h)
         floor = zt - band
         if fslip is not None:
@@ -199,7 +199,7 @@ class Below(Shape):
         x = np.asarray(x, float)
         if x.ndim != 2 or x.shape[1] not in (2, 3):
             raise ValueError(f"positions must have shape (N, 2) or (N, 3), got {x.shape}")
-        return x[:, -1] <= self.f(_horizontal(x, self.line)) + self.offset
+        return x[:, -1] <= self.f(plan_xy(x, self.line)) + self.offset
 
     @property
     def bounds(self):

@@ -17,6 +17,10 @@ Regions are shapes of one material each, or the coloured regions of a **label im
 (colour -> region and material, with a pixel size and an origin; pixels of an ``empty`` colour
 hold no element: a cavity drawn on the image).
 
+Under a terrain domain a region or group may be a ``surface``: the side of a layer boundary
+given as an elevation raster, or of a depth below the ground (a constant, or a raster of
+depths, e.g. a sliding surface), rasters read onto the terrain raster's grid.
+
 Not built yet: an interface material, several materials in one specimen fill.
 """
 from __future__ import annotations
@@ -74,10 +78,79 @@ class SceneTerrain(Strict):
         return read_elevation(str(resolve_path(self.raster)))
 
 
+class SceneSurface(Strict):
+    """A surface under a terrain domain, and the side of it the shape takes: the elevation
+    raster of a layer boundary, a constant depth below the ground, or a raster of depths below
+    the ground (positive down, e.g. a sliding surface: 0 where there is none). A raster is read
+    onto the terrain raster's grid (any CRS; the grids' footprints must agree)."""
+
+    raster: Optional[str] = F(None, description="Raster of the surface's elevation [m]")
+    depth: Optional[float] = F(None, unit="m", ge=0, description="Constant depth of the "
+                                                                 "surface below the ground")
+    depth_raster: Optional[str] = F(None, description="Raster of the surface's depth below "
+                                                      "the ground [m], positive down")
+    side: Literal["above", "below"] = F("above", description="Centres above (between the "
+                                                             "surface and the ground) or "
+                                                             "below the surface")
+
+    @model_validator(mode="after")
+    def _one(self):
+        given = [k for k in ("raster", "depth", "depth_raster") if getattr(self, k) is not None]
+        if len(given) != 1:
+            raise ValueError(f"give exactly one of raster, depth, depth_raster (got "
+                             f"{', '.join(given) or 'none'})")
+        return self
+
+    def files(self):
+        """``[(field, path)]`` of the rasters the surface reads."""
+        return [(k, getattr(self, k)) for k in ("raster", "depth_raster")
+                if getattr(self, k) is not None]
+
+    def mask(self, x, frame) -> np.ndarray:
+        """Centres ``x`` (model frame) on the surface's ``side``; ``frame``: the terrain domain's
+        :class:`TerrainFrame`."""
+        if frame is None:
+            raise ValueError("a surface shape needs a terrain domain")
+        xy = frame.plan(x)
+        if self.raster is not None:
+            z = frame.raster(self.raster).elevation(xy)
+        elif self.depth is not None:
+            z = frame.ground(xy) - self.depth
+        else:
+            z = frame.ground(xy) - frame.raster(self.depth_raster).elevation(xy)
+        return x[:, -1] > z if self.side == "above" else x[:, -1] < z
+
+
+class TerrainFrame:
+    """How a terrain scene's model coordinates meet its rasters: ``plan(x)`` the local raster
+    (x, y) of model points (3-D: x[:, :2]; 2-D: along the section line), ``ground(xy)`` the
+    terrain's elevation, ``raster(path)`` another raster read onto the terrain's grid."""
+
+    def __init__(self, top_key, line):
+        self.top_key, self.line = top_key, line
+        self.top = _read_top(*top_key)
+
+    def plan(self, x):
+        from geodem.geo.terrain import plan_xy
+
+        return plan_xy(x, self.line)
+
+    def ground(self, xy):
+        return self.top.elevation(xy)
+
+    def raster(self, path):
+        from geodem.workflow.models import resolve_path
+
+        p = resolve_path(path)
+        return _read_on_grid(str(p), p.stat().st_mtime, self.top_key)
+
+
 class Shape(Strict):
     """One of: ``box``, ``polygon`` (2-D), ``disc``, ``below`` or ``above`` (a horizontal plane:
     the last coordinate, y in 2-D and z in 3-D, below or above the value), ``band`` (a planar
-    layer of a thickness: a dipping weak layer), or, for a domain only, ``terrain``."""
+    layer of a thickness: a dipping weak layer), ``surface`` (a side of a surface under a
+    terrain domain: a layer boundary or a depth below the ground, from rasters), or, for a
+    domain only, ``terrain``."""
 
     box: Optional[SceneBox] = F(None, description="Box of element centres [m]")
     polygon: Optional[list[list[float]]] = F(None, unit="m", description="Polygon vertices "
@@ -88,12 +161,15 @@ class Shape(Strict):
     above: Optional[float] = F(None, unit="m", description="Centres with the last "
                                                            "coordinate above this")
     band: Optional[SceneBand] = F(None, description="Centres within thickness / 2 of a plane")
+    surface: Optional[SceneSurface] = F(None, description="Terrain domain: centres above or "
+                                                          "below a surface from a raster or a "
+                                                          "depth below the ground")
     terrain: Optional[SceneTerrain] = F(None, description="Domain only: the ground under an "
                                                           "elevation raster")
 
     @model_validator(mode="after")
     def _one(self):
-        names = ("box", "polygon", "disc", "below", "above", "band", "terrain")
+        names = ("box", "polygon", "disc", "below", "above", "band", "surface", "terrain")
         given = [k for k in names if getattr(self, k) is not None]
         if len(given) != 1:
             raise ValueError(f"give exactly one of {', '.join(names)} (got "
@@ -116,7 +192,9 @@ class Shape(Strict):
                     out.append((path + (key, f), f"{dim} coordinates needed"))
         return out
 
-    def mask(self, x) -> np.ndarray:
+    def mask(self, x, frame=None) -> np.ndarray:
+        """Elements (centres ``x``) in the shape; ``frame``: the :class:`TerrainFrame` of a
+        terrain domain (a ``surface`` needs it)."""
         from geodem.build.shapes import box_mask, disc_mask, polygon_mask
 
         if self.box is not None:
@@ -134,6 +212,8 @@ class Shape(Strict):
             n = np.asarray(self.band.normal, float)
             dist = (x - np.asarray(self.band.point, float)) @ (n / np.linalg.norm(n))
             return np.abs(dist) <= 0.5 * self.band.thickness
+        if self.surface is not None:
+            return self.surface.mask(x, frame)
         if self.terrain is not None:
             raise ValueError("a terrain is a domain, not a region's shape")
         return x[:, -1] > self.above
@@ -318,6 +398,13 @@ class Scene(ModelBase):
                 int(self.dim), None if t.line is None else tuple(map(tuple, t.line)),
                 None if t.extent is None else tuple(t.extent), float(t.base_depth))
 
+    def frame(self):
+        """The :class:`TerrainFrame` of a terrain domain (None for other domains)."""
+        if self.domain.terrain is None:
+            return None
+        key = self._terrain_key()
+        return TerrainFrame((key[0], key[1]), self._terrain().line)
+
     def _bounds(self):
         s = self.domain
         if s.terrain is not None:
@@ -412,6 +499,7 @@ class Scene(ModelBase):
                                                                 "region's shape"))
             elif r.shape is not None:
                 out += r.shape.problems(self.dim, ("regions", k, "shape"))
+                out += self._surface_problems(r.shape, ("regions", k, "shape"))
             else:
                 out += self._image_problems(r.image, ("regions", k, "image"))
             for n, _ in r.slots():
@@ -432,6 +520,7 @@ class Scene(ModelBase):
                                                                   "a group's shape"))
             elif g.shape is not None:
                 out += g.shape.problems(self.dim, ("groups", name, "shape"))
+                out += self._surface_problems(g.shape, ("groups", name, "shape"))
         for name, g in self.groups.items():
             if g.surface is not None and DOF_NAMES.index(g.surface[0]) >= self.dim:
                 out.append((("groups", name, "surface"), f"side {g.surface!r} does not exist "
@@ -497,6 +586,29 @@ class Scene(ModelBase):
             field = "raster" if "raster" in str(exc).lower() else (
                 "line" if t.line is not None and "line" in str(exc) else "base_depth")
             return [(path + (field,), str(exc))]
+        return []
+
+    def _surface_problems(self, shape, path):
+        """A surface shape: a terrain domain that reads, and rasters that read onto its grid."""
+        from geodem.geo.errors import GeometryError
+        from geodem.workflow.models import resolve_path
+
+        if shape.surface is None:
+            return []
+        path = path + ("surface",)
+        if self.domain.terrain is None:
+            return [(path, "a surface lies under a terrain: allowed with domain: {terrain: "
+                           "...} only (other domains: the shapes below, above, band or polygon)")]
+        if self._terrain_problems():
+            return []  # reported on the domain
+        for field, file in shape.surface.files():
+            if not resolve_path(file).exists():
+                return [(path + (field,), f"raster not found: {file} (looked in the working "
+                                          f"directory and the geodem source tree)")]
+            try:
+                self.frame().raster(file)
+            except GeometryError as exc:
+                return [(path + (field,), str(exc))]
         return []
 
     def _image_problems(self, im, path):
@@ -690,9 +802,10 @@ class Scene(ModelBase):
 
         region = np.zeros(len(x), np.int64)
         first = 1
+        frame = self.frame()
         for r in self.regions:
             if r.image is None:
-                region[r.shape.mask(x)] = -1 if r.empty else first
+                region[r.shape.mask(x, frame)] = -1 if r.empty else first
                 first += 1
                 continue
             im = r.image.read()
@@ -721,7 +834,7 @@ class Scene(ModelBase):
             elif g.region is not None:
                 sel = region == names[g.region]
             elif g.shape is not None:
-                sel = g.shape.mask(st.x)
+                sel = g.shape.mask(st.x, self.frame())
             elif g.surface is not None:
                 sel = surface_elements(st.x, self.d, g.surface)
             else:
@@ -730,6 +843,13 @@ class Scene(ModelBase):
             if not sel.any():
                 raise BuildError(("groups", name), f"group {name!r} selects no element")
             grp.add_group(st, name, sel)
+
+
+@functools.lru_cache(maxsize=8)
+def _read_on_grid(path, mtime, top_key):
+    from geodem.geo import read_elevation
+
+    return read_elevation(path, like=_read_top(*top_key))
 
 
 @functools.lru_cache(maxsize=4)

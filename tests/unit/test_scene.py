@@ -250,6 +250,78 @@ def test_terrain_inputs_are_checked():
     assert "give line, not extent" in str(e.value)
 
 
+SLIP = str(Path(HILL).with_name("hill_slip_depth.tif"))
+LINE = [[0.0, 150.0], [600.0, 150.0]]
+
+
+def _terrain_scene(d, regions, **more):
+    cfg = _cfg(d=d, domain={"terrain": {"raster": HILL, "line": LINE, "base_depth": 10.0}},
+               regions=regions, **more)
+    return cfg.model.build(cfg)
+
+
+def test_a_depth_raster_region_is_the_slide_above_the_sliding_surface():
+    """The region above a raster of depths below the ground is the terrain model's slide mask
+    (geodem.geo.terrain_model with that sliding surface), element for element."""
+    from geodem.geo import read_elevation, terrain_model
+    from geodem.geo.terrain import Depth
+
+    built = _terrain_scene(6.0, [{"name": "slide", "material": "clay",
+                                  "shape": {"surface": {"depth_raster": SLIP}}}])
+    st = built.state
+    top = read_elevation(HILL)
+    tm = terrain_model(top, 6.0, base_depth=10.0, dim=2, body="ground", line=LINE,
+                       sliding_surface=Depth(read_elevation(SLIP, like=top)))
+    want = {tuple(np.round(v, 6)) for v in tm.x[tm.masks["slide"]]}
+    got = {tuple(np.round(v, 6)) for v in st.x[np.isclose(st.kn, CLAY["kn"])]}
+    assert got == want and len(want) == 59
+    assert built.info["elements_by_region"]["slide"] == 59
+
+
+def test_a_constant_depth_and_an_elevation_raster_split_the_ground_into_layers(tmp_path):
+    """``depth: 7``: centres less than 7 m below the ground above the hill's profile; an
+    elevation raster 20 m under the ground (written here on the hill's grid): centres below
+    it; counted by hand from the ground's elevation along the section."""
+    import rasterio
+
+    from geodem.geo import read_elevation
+    from geodem.geo.terrain import plan_xy
+
+    lower = tmp_path / "lower.tif"
+    with rasterio.open(HILL) as src:
+        prof = src.profile
+        lower_z = src.read(1) - 20.0
+    with rasterio.open(lower, "w", **prof) as dst:
+        dst.write(lower_z, 1)
+    built = _terrain_scene(10.0, [
+        {"name": "deep", "material": "clay", "shape": {"surface": {"raster": str(lower),
+                                                                    "side": "below"}}},
+        {"name": "soil", "material": "sand", "shape": {"surface": {"depth": 7.0}}}])
+    st = built.state
+    ground = read_elevation(HILL).elevation(plan_xy(st.x, LINE))
+    soil = st.x[:, 1] > ground - 7.0
+    deep = (st.x[:, 1] < ground - 20.0) & ~soil
+    counts = built.info["elements_by_region"]
+    assert counts["soil"] == int(soil.sum()) > 20
+    assert counts["deep"] == int(deep.sum()) > 100
+    assert counts["default"] == st.n - counts["soil"] - counts["deep"] > 20
+
+
+def test_surface_shapes_are_checked():
+    with pytest.raises(WorkflowError) as e:
+        _cfg(regions=[{"name": "a", "material": "clay", "shape": {"surface": {"depth": 1.0}}}])
+    assert "model.regions[0].shape.surface" in str(e.value) and "terrain" in str(e.value)
+    with pytest.raises(WorkflowError) as e:
+        _cfg(d=10.0, domain={"terrain": {"raster": HILL, "line": LINE}},
+             groups={"g": {"shape": {"surface": {"depth_raster": "none.tif"}}}})
+    assert "model.groups.g.shape.surface.depth_raster" in str(e.value)
+    assert "raster not found: none.tif" in str(e.value)
+    with pytest.raises(WorkflowError) as e:
+        _cfg(regions=[{"name": "a", "material": "clay",
+                       "shape": {"surface": {"depth": 1.0, "raster": HILL}}}])
+    assert "exactly one of raster, depth, depth_raster" in str(e.value)
+
+
 # ============================================================================ specimen fill, holes
 SAND = {"fill": "specimen", "material": "sand", "d": 0.004,
         "domain": {"box": {"min": [0.1, 0.2], "max": [0.16, 0.26]}}}
