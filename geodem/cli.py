@@ -636,6 +636,15 @@ RollingStiffnessOpt = Annotated[Optional[float], typer.Option(
                                                    "this factor beta x Ks R*^2 (default 1; "
                                                    "switches rotation on; raises Cu / Tu).")]
 
+DiscDiameterOpt = Annotated[Optional[float], typer.Option(
+    "--disc-diameter", min=0.01, max=10.0, help="Diameter of the Brazilian check disc [m] "
+                                                "(default 0.1, or as stored).")]
+DiscDropOpt = Annotated[Optional[float], typer.Option(
+    "--disc-drop", min=0.5, max=0.99, help="The Brazilian check stops when the load falls "
+                                           "below this x its peak with a crack near the "
+                                           "centre (default 0.8, or as stored; 0.9 for "
+                                           "turning elements).")]
+
 
 FitOpt = Annotated[Optional[str], typer.Option(
     "--fit", help="How the UCS test fits E and nu: 'elastic' (default: the part of "
@@ -657,6 +666,18 @@ def _rotation_structure(bond_moment, rolling_friction, rolling_stiffness=None,
     if stored and stored.get("rotation"):
         base.update({k: stored[k] for k in base if stored.get(k) is not None})
     return {"rotation": True, **{k: base[k] if v is None else v for k, v in given.items()}}
+
+
+def _disc_options(diameter, drop, stored: dict | None = None) -> dict:
+    """The Brazilian check's ``disc_diameter`` and ``disc_drop`` for a CalibrationSpec: the
+    options given, else the stored specimen's, else the spec's defaults (absent)."""
+    out = {}
+    for key, value in (("disc_diameter", diameter), ("disc_drop", drop)):
+        if value is None and stored:
+            value = stored.get(key)
+        if value is not None:
+            out[key] = float(value)
+    return out
 
 
 def _phi_text(rec) -> str:
@@ -727,6 +748,8 @@ def calibrate_cmd(
                                           "(seeds SEED, SEED+1, ...) and match their mean "
                                           "(that many times the cost).")] = 1,
     fit: FitOpt = None,
+    disc_diameter: DiscDiameterOpt = None,
+    disc_drop: DiscDropOpt = None,
     backend: Annotated[Optional[str], typer.Option(
         "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
 ):
@@ -757,7 +780,8 @@ def calibrate_cmd(
                                ucs_size=size, seed=seed, iterations=iterations,
                                backend=backend, prefer=prefer, structure=structure,
                                check_reach=not force, friction=friction,
-                               packings=packings, fit=fit or "elastic")
+                               packings=packings, fit=fit or "elastic",
+                               **_disc_options(disc_diameter, disc_drop))
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
     if not force:
@@ -826,6 +850,8 @@ def rock_cmd(
     seed: Annotated[Optional[int], typer.Option("--seed", min=0, help=(
         "Packing seed of the first specimen (default: the calibration's)."))] = None,
     fit: FitOpt = None,
+    disc_diameter: DiscDiameterOpt = None,
+    disc_drop: DiscDropOpt = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
 ):
@@ -858,7 +884,8 @@ def rock_cmd(
         specs = [CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim,
                                  d_mean=float(sp.get("d_mean", 0.01 if dim == 3 else 0.005)),
                                  ucs_size=size, seed=first + k, iterations=1,
-                                 structure=structure, fit=fit or sp.get("fit", "window"))
+                                 structure=structure, fit=fit or sp.get("fit", "window"),
+                                 **_disc_options(disc_diameter, disc_drop, sp))
                  for k in range(packings)]
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)

@@ -65,6 +65,22 @@ def test_bad_spec_is_refused():
         C.CalibrationSpec(targets=TARGETS, dim=4)
     with pytest.raises(ValueError, match="iterations"):
         C.CalibrationSpec(targets=TARGETS, iterations=0)
+    with pytest.raises(ValueError, match="disc_drop = 1.0: allowed 0.5 <= drop < 1"):
+        C.CalibrationSpec(targets=TARGETS, disc_drop=1.0)
+
+
+def test_the_brazilian_check_disc_follows_the_spec_and_the_options():
+    """The check disc's diameter and stop (``--disc-diameter``, ``--disc-drop``): the options
+    given, else the stored specimen's, else the defaults 0.1 m and 0.8."""
+    from geodem.cli import _disc_options
+
+    wf = C._brazilian_workflow(C.CalibrationSpec(targets=TARGETS), {"kn": 1.0})
+    assert wf["model"]["diameter"] == 0.1 and wf["steps"][0]["drop"] == 0.8
+    opts = _disc_options(0.2, None, {"disc_diameter": 0.1, "disc_drop": 0.9})
+    assert opts == {"disc_diameter": 0.2, "disc_drop": 0.9}
+    wf = C._brazilian_workflow(C.CalibrationSpec(targets=TARGETS, **opts), {"kn": 1.0})
+    assert wf["model"]["diameter"] == 0.2 and wf["steps"][0]["drop"] == 0.9
+    assert _disc_options(None, None) == {} and _disc_options(None, 0.95) == {"disc_drop": 0.95}
 
 
 @pytest.mark.parametrize("prefer", ["Cu", "Tu"])
