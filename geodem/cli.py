@@ -614,36 +614,36 @@ def _fresh_out_dir(out: str, overwrite: bool):
 MaterialArg = Annotated[str, typer.Argument(
     metavar="MATERIAL", help="Library name (e.g. granite) or path of a material file.")]
 OutDirOpt = Annotated[str, typer.Option("-o", "--out", help="Output directory (created).")]
-BondGapOpt = Annotated[Optional[float], typer.Option(
-    "--bond-gap", min=1e-4, max=0.3, help="Bond range (isotropic packing): pairs whose surface "
-                                          "gap is below this x d_mean are bonded (default "
-                                          "0.01; in 2-D a larger range lowers Cu / Tu).")]
-BondWeibullOpt = Annotated[Optional[float], typer.Option(
-    "--bond-weibull", min=0.5, max=100, help="Weibull modulus of the per-bond strength "
-                                             "scatter (default: none, or as stored).")]
-BondMomentOpt = Annotated[Optional[float], typer.Option(
-    "--bond-moment", min=0.0, max=100, help="Turning elements with moment-resisting bonds: a "
-                                            "bond holds a rolling moment up to this x R* F_b "
-                                            "(switches rotation on; docs/calibration.md, "
-                                            "'Rotation and moment-resisting bonds').")]
-RollingFrictionOpt = Annotated[Optional[float], typer.Option(
-    "--rolling-friction", min=0.0, max=2.0, help="Turning elements with rolling resistance "
-                                                 "mu_r of contacts in compression (switches "
-                                                 "rotation on).")]
+def _float_option(flag: str, lo: float, hi: float, text: str):
+    """An optional float option ``flag`` in ``[lo, hi]`` (None when not given)."""
+    return Annotated[Optional[float], typer.Option(flag, min=lo, max=hi, help=text)]
 
-RollingStiffnessOpt = Annotated[Optional[float], typer.Option(
-    "--rolling-stiffness", min=0.0, max=16.0, help="Turning elements whose rolling spring is "
-                                                   "this factor beta x Ks R*^2 (default 1; "
-                                                   "switches rotation on; raises Cu / Tu).")]
 
-DiscDiameterOpt = Annotated[Optional[float], typer.Option(
-    "--disc-diameter", min=0.01, max=10.0, help="Diameter of the Brazilian check disc [m] "
-                                                "(default 0.1, or as stored).")]
-DiscDropOpt = Annotated[Optional[float], typer.Option(
-    "--disc-drop", min=0.5, max=0.99, help="The Brazilian check stops when the load falls "
-                                           "below this x its peak with a crack near the "
-                                           "centre (default 0.8, or as stored; 0.9 for "
-                                           "turning elements).")]
+BondGapOpt = _float_option(
+    "--bond-gap", 1e-4, 0.3, "Bond range (isotropic packing): pairs whose surface gap is below "
+                             "this x d_mean are bonded (default 0.01; in 2-D a larger range "
+                             "lowers Cu / Tu).")
+BondWeibullOpt = _float_option(
+    "--bond-weibull", 0.5, 100, "Weibull modulus of the per-bond strength scatter (default: "
+                                "none, or as stored).")
+BondMomentOpt = _float_option(
+    "--bond-moment", 0.0, 100, "Turning elements with moment-resisting bonds: a bond holds a "
+                               "rolling moment up to this x R* F_b (switches rotation on; "
+                               "docs/calibration.md, 'Rotation and moment-resisting bonds').")
+RollingFrictionOpt = _float_option(
+    "--rolling-friction", 0.0, 2.0, "Turning elements with rolling resistance mu_r of "
+                                    "contacts in compression (switches rotation on).")
+RollingStiffnessOpt = _float_option(
+    "--rolling-stiffness", 0.0, 16.0, "Turning elements whose rolling spring is this factor "
+                                      "beta x Ks R*^2 (default 1; switches rotation on; "
+                                      "raises Cu / Tu).")
+DiscDiameterOpt = _float_option(
+    "--disc-diameter", 0.01, 10.0, "Diameter of the Brazilian check disc [m] (default 0.1, "
+                                   "or as stored).")
+DiscDropOpt = _float_option(
+    "--disc-drop", 0.5, 0.99, "The Brazilian check stops when the load falls below this x "
+                              "its peak with a crack near the centre (default 0.8, or as "
+                              "stored; 0.9 for turning elements).")
 
 
 FitOpt = Annotated[Optional[str], typer.Option(
