@@ -152,8 +152,8 @@ def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = 
     ``force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs, brate, q_visc, q_bn,
     q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz, *EXTRA_FORCE)``,
     ``energy(x, props, nbr, cstate, fs, hertz, e_el, mr, rot_props)`` with ``EXTRA_MOVE = (w,
-    wa, dth, rfree, inertia, fdash)`` and ``EXTRA_FORCE = EXTRA_MOVE + (mr, rot_props)``: the arrays of
-    the options (placeholders for an option that is off: :func:`placeholders`).
+    wa, dth, rfree, inertia, fdash)`` and ``EXTRA_FORCE = EXTRA_MOVE + (mr, rot_props)``: the
+    arrays of the options (placeholders for an option that is off: :func:`placeholders`).
 
     The CPU namespace also has ``steps(nsteps, code_t0, code_s0, ...)``: ``nsteps`` whole steps
     (move, owner pass, finish) in one call (``geodem.backends.step_bodies.cpu_steps``).
