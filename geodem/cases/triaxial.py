@@ -27,7 +27,11 @@ and the ``triaxial`` step.
      ``balance_ratio``, or ``consolidation_balances`` standard balances (50 N steps each) have
      passed (then a warning; the result records ``consolidated: false``);
   2. axial loading: the bottom platen is fixed, the top platen moves down at
-     ``strain_rate x h_c`` (``h_c`` = consolidated height), the lateral walls stay
+     ``strain_rate x h_c`` (``h_c`` = consolidated height); the specimen's elements within
+     ``platen_layer`` d_mean of each platen move with it along the axis (free sideways, not
+     turning: the UCS test's platens, which are the specimen's own end layers; before, a
+     turning rock's peak at sigma3 = 0 was 4-22 % above its UCS, with walls alone); the lateral
+     walls stay
      servo-controlled at ``sigma3``; it stops when the deviator has fallen below ``drop`` x its
      peak after the peak (and the strain is at least 1.5 x the strain at the peak: a crack burst
      in a small specimen can halve the stress for a moment), when the nominal strain reaches
@@ -58,7 +62,9 @@ and the ``triaxial`` step.
     ``t`` (default ``d_mean``, as in ``uniaxial``) in 2-D;
   - axial stress ``sigma1`` = mean platen force / current lateral area ``A = w t`` (2-D) or
     ``w_x w_y`` (3-D); deviator ``q = sigma1 - sigma3``;
-  - axial strain ``(h_c - h) / h_c``, lateral strain ``mean_a (w_c,a - w_a) / w_c,a`` (negative
+  - axial strain ``(L_c - L) / L_c`` between the centroids of the end layers glued to the
+    platens (``platen_layer``, as the UCS test measures it), or ``(h_c - h) / h_c`` between
+    the platens with ``platen_layer: 0``; lateral strain ``mean_a (w_c,a - w_a) / w_c,a`` (negative
     when the specimen bulges), volumetric strain ``1 - V / V_c`` with ``V = prod_a e_a``, all from
     the consolidated state ``c``; the consolidation's own volumetric strain is from the state
     before consolidation;
@@ -553,6 +559,19 @@ class Walls:
         kn_s = float(st.kn[self.spec].mean())
         self.kn_contact = kn_w * kn_s / (kn_w + kn_s)
         self.rbar = {g: float(st.r[i].mean()) for g, i in self.idx.items()}
+        # platen -> specimen elements glued to it along the loading axis (``platen_layer``)
+        self.layers: dict = {}
+
+    def layer_distance(self, st) -> float:
+        """Distance between the glued end layers' centroids along the loading axis [m]."""
+        return float(st.x[self.layers["top"], self.ax].mean()
+                     - st.x[self.layers["bottom"], self.ax].mean())
+
+    def layer(self, st, g: str, depth: float) -> np.ndarray:
+        """Specimen elements whose centres lie within ``depth`` [m] of platen ``g``'s inner
+        surface: the end layer that ``platen_layer`` moves with the platen."""
+        s = self.surfaces(st)[g]
+        return np.flatnonzero(self.spec & (self.sign[g] * (s - st.x[:, self.ax]) < depth))
 
     def surfaces(self, st) -> dict:
         """Inner surface coordinate of every wall [m]."""
@@ -592,8 +611,11 @@ class Walls:
     def forces(self, st) -> dict:
         """The specimen's push on each wall along its outward normal [N] (>= 0 in compression):
         ``sign x`` the wall's reaction (contact force on its fixed DOFs) along its axis."""
-        return {g: self.sign[g] * float((st.m[i] * st.a[i, self.axis[g]]).sum())
-                for g, i in self.idx.items()}
+        f = {g: self.sign[g] * float((st.m[i] * st.a[i, self.axis[g]]).sum())
+             for g, i in self.idx.items()}
+        for g, i in self.layers.items():  # the glued end layer pushes through the platen too
+            f[g] += self.sign[g] * float((st.m[i] * st.a[i, self.ax]).sum())
+        return f
 
     def stresses(self, st, e=None) -> dict:
         e = self.extents(st) if e is None else e
@@ -717,6 +739,13 @@ class Triaxial(StepBase):
                                                     "(default 5 x strain_rate)")
     standard_damping: bool = F(True, description="MatDEM's standard damping eta_c / N on (N = "
                                                  "elements across the height)")
+    platen_layer: float = F(1.0, ge=0, le=5,
+                            description="During loading, the specimen's elements within this "
+                                        "many d_mean of each platen move with it along the "
+                                        "loading axis (free sideways, not turning): the UCS "
+                                        "test's platens, so that at sigma3 = 0 both tests load "
+                                        "the rock alike; 0: the platens push through their "
+                                        "contacts alone (friction: the model's platen_friction)")
     thickness: Optional[float] = F(None, unit="m", gt=0,
                                    description="2-D: thickness for the areas (default d_mean)")
     plot: bool = F(True, description="Draw triaxial_curves.png, mohr_circles.png and "
@@ -877,7 +906,8 @@ class _Run:
                 rec.pop("end", None)
                 rec.pop("result", None)
             if rec.get("load_start", -1) > step:
-                for key in ("load_start", "consolidation", "h_c", "e_c"):
+                for key in ("load_start", "consolidation", "h_c", "e_c", "platen_layers",
+                            "gauge_length"):
                     rec.pop(key, None)
             keep.append(rec)
         self.prog["tests"] = keep
@@ -913,6 +943,7 @@ class _Run:
         c0, cmax = rec["start"], rec["start"] + self.c_steps
         tol = p.stress_tolerance(s3)
         targets = {g: s3 for g in w.names}
+        w.layers = {}  # consolidation: the walls alone
         ratio = math.inf
         while True:
             st = ctx.state
@@ -973,6 +1004,10 @@ class _Run:
             v_top[self.ax] = -p.strain_rate * h_c
             vel["top"] = v_top
             w.set_velocities(ctx, vel)
+            self._glue_layers(rec, vel)
+        else:
+            w.layers = {g: np.asarray(i, dtype=np.int64)
+                        for g, i in rec.get("platen_layers", {}).items()}
         rows = [r for r in self.rows if r[0] == k]
         q = [r[6] for r in rows]
         ipeak = int(np.argmax(q)) if q else 0
@@ -986,7 +1021,7 @@ class _Run:
                 continue
             due = (s - l0) % self.sample_every == 0 or s >= lmax
             if due and not (rows and rows[-1][2] == s):
-                row = self._sample(k, s3, st, e_c, h_c)
+                row = self._sample(k, s3, st, e_c, h_c, rec.get("gauge_length"))
                 rows.append(row)
                 self.rows.append(row)
                 with open(self.f_curves, "a", newline="") as fh:
@@ -1049,13 +1084,39 @@ class _Run:
         self._save_progress()
         return res
 
-    def _sample(self, k, s3, st, e_c, h_c):
+    def _glue_layers(self, rec, vel):
+        """Glue the specimen's end layers (``platen_layer`` d_mean deep) to the platens along
+        the loading axis: they move at the platens' speed, free sideways, and do not turn; the
+        indices go to the progress record so that a resumed run measures the same forces."""
+        ctx, w, ax = self.ctx, self.walls, self.ax
+        depth = self.p.platen_layer * self.d
+        w.layers = {g: w.layer(ctx.state, g, depth) for g in ("bottom", "top")} if depth else {}
+        rec["platen_layers"] = {g: i.tolist() for g, i in w.layers.items()}
+        rec["gauge_length"] = w.layer_distance(ctx.state) if w.layers else None
+        self._save_progress()
+        if not w.layers:
+            return
+
+        def glue(s):
+            for g, i in w.layers.items():
+                s.free[i, ax] = 0.0
+                s.v[i, ax] = vel[g][ax]
+                if s.rotation:
+                    s.rfree[i] = 0.0
+                    s.w[i] = 0.0
+
+        ctx.decree(glue)  # the layers' kinetic energy change is booked as work
+
+    def _sample(self, k, s3, st, e_c, h_c, gauge=None):
         w = self.walls
         e = w.extents(st)
         sig = w.stresses(st, e)
         s1 = 0.5 * (sig["bottom"] + sig["top"])
         lat = [sig[g] for g in w.lateral]
-        eps_ax = (h_c - e[-1]) / h_c
+        if gauge:  # between the glued end layers' centres, as the UCS test measures it
+            eps_ax = (gauge - w.layer_distance(st)) / gauge
+        else:
+            eps_ax = (h_c - e[-1]) / h_c
         eps_lat = float(np.mean((e_c[:-1] - e[:-1]) / e_c[:-1]))
         eps_v = 1.0 - float(np.prod(e) / np.prod(e_c))
         ct, cs = self._cracks()

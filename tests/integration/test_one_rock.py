@@ -50,9 +50,27 @@ def _ucs_and_triaxial(tmp_path, spec, rate):
 
 
 def test_the_triaxial_test_at_zero_confinement_is_the_ucs_test(tmp_path):
-    # measured 2026-12-04 (commit 6d7aae0): 76.3 MPa (UCS) and 79.9 MPa (triaxial), +4.8 %
+    # measured 2026-12-05: 76.3 MPa (UCS) and 74.8 MPa (triaxial, end layers glued to the
+    # platens), -1.9 %; with the platens' friction alone (platen_layer 0) 79.9 MPa, +4.8 %
     ucs, tri = _ucs_and_triaxial(tmp_path, SPECIMEN, 1.0)
     assert tri / ucs == pytest.approx(1.0, abs=0.05), (tri, ucs)
+
+
+@pytest.mark.slow
+@pytest.mark.validation
+def test_over_five_packings_the_triaxial_at_zero_confinement_is_the_ucs_test(tmp_path):
+    """One packing's peak moves by a few per cent with a 1 % change of the loading rate (the
+    crack cascade after the first cracks is chaotic: the seed-3 UCS reads 74.6 / 72.4 / 76.9 /
+    70.0 / 70.0 MPa at 0.98 / 0.99 / 1 / 1.01 / 1.02 /s), so the two tests are compared over
+    five packings. Measured 2026-12-05: triaxial / UCS 0.981, 0.988, 1.011, 0.907, 1.019 (mean
+    0.981); about 2.5 minutes on one core."""
+    ratios = []
+    for seed in range(5):
+        (tmp_path / f"seed{seed}").mkdir()
+        ucs, tri = _ucs_and_triaxial(tmp_path / f"seed{seed}", dict(SPECIMEN, seed=seed), 1.0)
+        ratios.append(tri / ucs)
+    assert sum(ratios) / 5 == pytest.approx(1.0, abs=0.03), ratios
+    assert all(abs(r - 1.0) < 0.12 for r in ratios), ratios
 
 
 def test_the_brazilian_test_gives_the_lab_tensile_strength(tmp_path):
@@ -70,12 +88,10 @@ def test_the_direct_tension_test_gives_the_lab_tensile_strength(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.validation
-@pytest.mark.xfail(strict=True, reason=(
-    "3-D sandstone, 0.1 x 0.1 x 0.2 m at d_mean 10 mm (10 elements across), strain rate 0.2 /s: "
-    "UCS test 71.3 MPa, triaxial box at sigma3 = 0 77.5 MPa (+8.7 %; 2026-12-04, commit 6d7aae0; "
-    "the window-fit library: +9.1 %, and +5.9 % at 15 elements across); in 2-D the same pair "
-    "differs by +10 % at 10 elements across and -1 % at 20 (docs/triaxial.md)"))
 def test_the_3d_triaxial_test_at_zero_confinement_is_the_ucs_test(tmp_path):
+    """3-D sandstone, 0.1 x 0.1 x 0.2 m at d_mean 10 mm (10 elements across), 0.2 /s; measured
+    2026-12-05: UCS 71.3 MPa, triaxial 69.4 MPa (-2.6 %; seed 1: 71.9 / 70.7 MPa, -1.7 %).
+    With the platens' friction alone (platen_layer 0) the box was 77.5 MPa, +8.7 %."""
     spec = dict(SPECIMEN, dim=3, size=[0.1, 0.1, 0.2], d_mean=0.01)
     ucs, tri = _ucs_and_triaxial(tmp_path, spec, 0.2)
     assert tri / ucs == pytest.approx(1.0, abs=0.05), (tri, ucs)

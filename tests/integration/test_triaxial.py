@@ -152,8 +152,10 @@ def strength_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("tri_strength")
     # a little wider than BOX: a specimen 6 elements wide can collapse as a structure (a column
     # gives way after a handful of bond breaks) before it fails as a material
+    # max_strain 0.02: with the end layers glued to the platens (platen_layer 1) the 2 MPa
+    # stage of this uncalibrated rock peaks at 1.5 % strain (1.2 % with friction platens)
     p = write(tmp, {"confining_pressures": [0.0, 1.0e6, 2.0e6], "strain_rate": 1.0,
-                    "max_strain": 0.012, "samples": 100}, model={"size": [0.04, 0.08]})
+                    "max_strain": 0.02, "samples": 100}, model={"size": [0.04, 0.08]})
     out = tmp / "out"
     res = CliRunner().invoke(app, ["run", str(p), "-o", str(out), "--no-progress"])
     return res, out
@@ -234,10 +236,11 @@ def test_colliding_walls_are_refused(tmp_path):
 
 
 def test_a_stage_stopped_before_its_peak_is_no_peak_and_out_of_the_fit(tmp_path):
-    # 2 MPa of confinement keeps the specimen hardening past 0.6 % strain: its largest stress
-    # at max_strain is a lower bound, not a strength; the fit is left with one point
+    # 2 MPa of confinement keeps the specimen hardening past 0.4 % strain (a crack burst at
+    # 0.5 % takes 17 % off for a moment; the peak is at 1.5 %): its largest stress at
+    # max_strain is a lower bound, not a strength; the fit is left with one point
     p = write(tmp_path, {"confining_pressures": [0.0, 2.0e6], "strain_rate": 1.0,
-                         "max_strain": 0.006, "samples": 100}, model={"size": [0.04, 0.08]})
+                         "max_strain": 0.004, "samples": 100}, model={"size": [0.04, 0.08]})
     out = tmp_path / "out"
     res = CliRunner().invoke(app, ["run", str(p), "-o", str(out), "--no-progress"])
     assert res.exit_code == 0, res.output

@@ -35,7 +35,8 @@ def write(tmp_path, step, model=None):
 @pytest.fixture(scope="module")
 def elastic_3d(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("tri3d")
-    p = write(tmp, {"confining_pressures": [0.0, 1.0e6], "strain_rate": 1.0,
+    # 0.2 /s: at 1 /s the lateral servo lags (0.45 MPa at sigma3 = 0) and stiffens the lattice
+    p = write(tmp, {"confining_pressures": [0.0, 1.0e6], "strain_rate": 0.2,
                     "max_strain": 5.0e-4, "samples": 30})
     code, s = run_workflow(p, tmp / "out", echo=False, progress=False)
     assert code == 0 and s["status"] == "ok", s.get("error")
@@ -51,11 +52,17 @@ def test_six_walls_hold_the_consolidation_stress(elastic_3d):
         assert sig == pytest.approx(1.0e6, rel=0.02), name
 
 
-def test_lattice_modulus_through_the_platens(elastic_3d):
-    tests = elastic_3d["results"]["triaxial"]["tests"]
-    for t in tests:
+def test_lattice_modulus_between_the_glued_end_layers(elastic_3d):
+    """The strain is measured between the end layers glued to the platens (as in the UCS test),
+    so no wall contact is in it: unconfined, the lattice's own E (measured 18.8 GPa, 2026-12-05).
+    Confined at 1 MPa the tangent reads 26 GPa: the lateral walls move only sideways, so as the
+    face elements slide down past their head-on wall elements the pressed contacts tilt and
+    push back along the axis (with the platen contacts in the strain, before: 0.7-1.0 x E)."""
+    unconfined, confined = elastic_3d["results"]["triaxial"]["tests"]
+    for t in (unconfined, confined):
         assert t["cracks_tensile"] + t["cracks_shear"] == 0
-        assert 0.70 * E < t["E"] < 1.0 * E, (t["sigma3"], t["E"])
+    assert unconfined["E"] == pytest.approx(E, rel=0.10)
+    assert 1.0 * E < confined["E"] < 1.5 * E
 
 
 def test_prepared_model_has_a_lattice_inside_six_walls(tmp_path):
