@@ -605,38 +605,23 @@ class FreezeSpec(Strict):
                                                     "any free element)")
 
 
-@register_step("landslide")
-class LandslideStep(StepBase):
-    """Gravity settling, then a strength-reduction trigger (bonds across the sliding surface
-    cut or weakened, reduced friction and bond strength of the slide body), then the runout
-    under gravity until the slide is at rest. Adds runout_m, travel_angle_deg, max_velocity,
-    deposit_volume_m3, wall_s and elements to summary.json; writes landslide_history.csv,
+class RunoutBase(StepBase):
+    """The runout of a slide body under gravity until it is at rest: the thin case step of a
+    landslide composed from parts (a terrain ``scene`` with the slide as a region, then the
+    generic ``fix``, ``balance``, ``weaken`` and ``damping`` steps; workflows/
+    landslide_scene.yaml). Samples the group's motion, stops when its mean speed is back below
+    ``rest_speed`` after having exceeded it (and ``min_time`` has passed) or at ``max_time``.
+    Adds runout_m, travel_angle_deg, max_velocity, deposit_volume_m3, wall_s and elements to
+    summary.json (definitions: module docstring); writes landslide_history.csv,
     landslide_velocity.png, landslide_deposit.png, landslide_snapshots.png, landslide.gif,
     landslide_vtk/ and georef.json."""
 
-    example = {"kind": "landslide", "max_time": 1.0, "min_time": 0.5, "settle": False,
-               "snapshots": 2, "gif": False, "vtk_frames": 2}
-    example_model = Landslide.example
-    settle: bool = F(True, description="One standard balance under gravity (damping eta_c / "
-                                       "N) before the trigger")
-    slip_bond_rate: float = F(0.0, ge=0, le=1,
-                              description="Bond rate of the bonds across the sliding surface "
-                                          "after the trigger (0: cut)")
-    slide_friction: Optional[float] = F(None, ge=0, le=5,
-                                        description="Friction coefficient of the slide "
-                                                    "elements after the trigger (default: "
-                                                    "unchanged)")
-    strength_factor: float = F(0.0, ge=0, le=1,
-                               description="Factor on the slide elements' bond strength (xb, "
-                                           "fs0) at the trigger (0: their bonds are cut)")
-    damping_ratio: float = F(0.0, ge=0, le=1,
-                             description="Mass damping of the slide during the runout, "
-                                         "fraction of critical (0: none)")
-    ground_damping_ratio: float = F(0.0, ge=0, le=1,
-                                    description="Mass damping of the ground (every free element "
-                                                "outside the slide) during the runout, fraction "
-                                                "of critical: stands in for the waves a bounded "
-                                                "model cannot radiate away (0: none)")
+    example = {"kind": "runout", "max_time": 1.0, "min_time": 0.5, "snapshots": 2,
+               "gif": False, "vtk_frames": 2}
+    example_model = {"type": "lattice_block", "dim": 2, "counts": [6, 4], "diameter": 1.0,
+                     "material": "rock", "gravity": [0.0, -9.81],
+                     "groups": {"slide": {"side": "ymax"}}}
+    group: Name = F("slide", description="The slide body (a group of the model)")
     freeze: Optional[FreezeSpec] = F(None, description="Put elements at rest to sleep during "
                                                        "the runout (docs/freezing.md)")
     max_time: float = F(60.0, unit="s", gt=0, description="Longest runout time")
@@ -654,20 +639,22 @@ class LandslideStep(StepBase):
     plot: bool = F(True, description="Draw the PNGs (needs matplotlib)")
 
     def check(self, cfg, groups):
-        if "slide" not in groups:
-            return [((), "the landslide step needs a model with a 'slide' group (model type "
-                         "landslide)")]
+        if self.group not in groups:
+            return [(("group",), f"no group '{self.group}' in the model; allowed: "
+                                 f"{', '.join(sorted(groups))}")]
         if self.min_time >= self.max_time:
             return [(("min_time",), f"must be below max_time = {self.max_time:g} s")]
         return []
 
     def _settle_steps(self, plan):
-        from geodem.core import timestep
-
-        return timestep.standard_balance_steps(plan.n_across) if self.settle else 0
+        return 0
 
     def planned_steps(self, plan):
         return self._settle_steps(plan) + max(1, int(math.ceil(self.max_time / plan.dt)))
+
+    def _before(self, ctx, slide):
+        """What happens at the start of the runout (the landslide step: its trigger)."""
+        return None
 
     # ------------------------------------------------------------------ execution
     def execute(self, ctx):
@@ -679,7 +666,7 @@ class LandslideStep(StepBase):
         d = float(info["diameter"])
         self._georef(ctx)
         settle = self._settle_steps(ctx.plan)
-        slide = groups.members(st, "slide")
+        slide = groups.members(st, self.group)
         if not ctx.resumed or st.step < ctx.start_step + settle:
             if settle:
                 ctx.set_eta(timestep.standard_damping(st, ctx.plan.n_across))
@@ -692,7 +679,7 @@ class LandslideStep(StepBase):
             st = ctx.state
             x0, t0 = st.x[slide].copy(), float(st.time)
             np.savez(start, x0=x0, t0=t0)
-            self._trigger(ctx, slide)
+            self._before(ctx, slide)
             if self.freeze is not None:  # (a resumed run gets it back from its checkpoint)
                 from geodem.fields.freeze import FreezeField
 
@@ -755,47 +742,6 @@ class LandslideStep(StepBase):
         ctx.runner.h5.set_attrs(**attrs)
         ctx.summary["crs_epsg"] = attrs["crs_epsg"]
 
-    def _trigger(self, ctx, slide):
-        from geodem.core import timestep
-        from geodem.core.state import BONDED
-
-        st = ctx.state
-        sl = np.zeros(st.n, bool)
-        sl[slide] = True
-        nb = st.nbr
-        cross = (nb >= 0) & (st.cstate == BONDED) & (sl[:, None] != sl[np.maximum(nb, 0)])
-        i, j = np.nonzero(cross)
-        pairs = [(a, b) for a, b in zip(i.tolist(), nb[i, j].tolist()) if a < b]
-        if self.slip_bond_rate == 0.0:
-            cut = ctx.sim.cut([p[0] for p in pairs], [p[1] for p in pairs]) if pairs else 0
-        else:
-            cut = 0
-        inner = (nb >= 0) & (st.cstate == BONDED) & sl[:, None] & sl[np.maximum(nb, 0)]
-        ii, jj = np.nonzero(inner)
-        inner_pairs = [(a, b) for a, b in zip(ii.tolist(), nb[ii, jj].tolist()) if a < b]
-        if self.strength_factor == 0.0 and inner_pairs:
-            cut += ctx.sim.cut([p[0] for p in inner_pairs], [p[1] for p in inner_pairs])
-        crit = timestep.element_critical_damping(ctx.state)
-        eta = np.where(sl, self.damping_ratio, self.ground_damping_ratio) * crit
-
-        def trigger(s):
-            if self.slip_bond_rate > 0.0:
-                s.brate[cross] = self.slip_bond_rate
-            if self.slide_friction is not None:
-                s.mu[slide] = self.slide_friction
-            if self.strength_factor > 0.0:
-                s.xb[slide] *= self.strength_factor
-                s.fs0[slide] *= self.strength_factor
-            s.eta[:] = eta
-
-        ctx.decree(trigger, "slide")
-        across = "cut" if self.slip_bond_rate == 0 else f"at rate {self.slip_bond_rate:g}"
-        in_slide = "cut" if self.strength_factor == 0 else f"x {self.strength_factor:g}"
-        fric = self.slide_friction if self.slide_friction is not None else "kept"
-        ctx.log(f"trigger at t = {ctx.state.time:.4g} s: {len(pairs)} bonds across the sliding "
-                f"surface {across}, {len(inner_pairs)} slide bonds {in_slide}, "
-                f"slide friction {fric} ({cut} bonds cut in all)")
-
     def _sample(self, ctx, slide, x0, t0, d, path):
         s = ctx.state
         x, v, m = s.x[slide], s.v[slide], s.m[slide]
@@ -824,10 +770,12 @@ class LandslideStep(StepBase):
     # ------------------------------------------------------------------ results
     def _results(self, ctx, slide, x0, rows, reason, fdir, d, wall0, runout_wall, settle):
         s = ctx.state
-        info = ctx.model.info
+        ref = ctx.model.reference
+        info = dict(ctx.model.info)
+        # a model that is not a terrain (a block, a scene without a raster): its bottom
+        info.setdefault("base_z", float((ref[:, -1] - s.r).min()))
         x, r, m = s.x[slide], s.r[slide], s.m[slide]
         moved = np.linalg.norm(x - x0, axis=1) > self.moved_threshold * d
-        ref = ctx.model.reference
         lo, hi = ref.min(axis=0) - r.max(), ref.max(axis=0) + r.max()
         lost = (x[:, -1] < info["base_z"]) | np.any((x[:, :-1] < lo[:-1]) | (x[:, :-1] > hi[:-1]),
                                                     axis=1)
@@ -842,7 +790,8 @@ class LandslideStep(StepBase):
             "runout_m": met["runout_m"], "travel_angle_deg": met["travel_angle_deg"],
             "max_velocity": float(a[:, 2].max()), "max_element_speed": float(a[:, 3].max()),
             "deposit_volume_m3": float(vol[moved].sum()),
-            "deposit_bulk_volume_m3": float(vol[moved].sum() / info["solid_fraction"]),
+            "deposit_bulk_volume_m3": (float(vol[moved].sum() / info["solid_fraction"])
+                                       if info.get("solid_fraction") else None),
             "slide_volume_m3": float(vol.sum()), "displaced_elements": int(moved.sum()),
             "slide_elements": int(slide.size), "slide_friction": mu,
             "lost_elements": int(lost.sum()),
@@ -850,7 +799,7 @@ class LandslideStep(StepBase):
             "final_mean_speed": float(a[-1, 2]),
             "ground_max_displacement": float(gdisp.max()) if gdisp.size else 0.0,
             "energy_closure_rel_error": float(ctx.sim.energies()["closure_error"]),
-            "solid_fraction": info["solid_fraction"],
+            "solid_fraction": info.get("solid_fraction"),
             "volume_note": "2-D: m^3 per metre of width (discs pi r^2 x 1 m)"
             if s.dim == 2 else "3-D: spheres",
             "elements": int(s.n), "wall_s": time.perf_counter() - wall0,
@@ -905,7 +854,7 @@ class LandslideStep(StepBase):
         if not self.vtk_frames or not frames:
             return
         s = ctx.state
-        meta = ctx.model.info["georef"]
+        meta = ctx.model.info.get("georef")  # None: the model's own coordinates
         pick = np.unique(np.linspace(0, len(frames) - 1, self.vtk_frames).round().astype(int))
         w = VtkWriter(ctx.out_dir / VTK_DIR)
         x = s.x.copy()
@@ -914,11 +863,107 @@ class LandslideStep(StepBase):
             z = np.load(frames[k])
             x[slide] = z["x"]
             v[slide] = z["v"]
-            pseudo = SimpleNamespace(x=to_crs(x, meta), r=s.r, v=to_xyz(v), group=s.group,
+            pseudo = SimpleNamespace(x=to_crs(x, meta) if meta else to_xyz(x), r=s.r, v=to_xyz(v), group=s.group,
                                      cstate=s.cstate, time=float(z["time"]))
             w.write(pseudo, int(z["step"]))
         if VTK_DIR not in ctx.runner.files:
             ctx.runner.files.append(VTK_DIR)
+
+
+@register_step("runout")
+class Runout(RunoutBase):
+    __doc__ = RunoutBase.__doc__
+
+
+@register_step("landslide")
+class LandslideStep(RunoutBase):
+    """Gravity settling, then a strength-reduction trigger (bonds across the sliding surface
+    cut or weakened, reduced friction and bond strength of the slide body), then the runout
+    under gravity until the slide is at rest (:class:`Runout`). Adds runout_m,
+    travel_angle_deg, max_velocity, deposit_volume_m3, wall_s and elements to summary.json;
+    writes landslide_history.csv, landslide_velocity.png, landslide_deposit.png,
+    landslide_snapshots.png, landslide.gif, landslide_vtk/ and georef.json."""
+
+    example = {"kind": "landslide", "max_time": 1.0, "min_time": 0.5, "settle": False,
+               "snapshots": 2, "gif": False, "vtk_frames": 2}
+    example_model = Landslide.example
+    settle: bool = F(True, description="One standard balance under gravity (damping eta_c / "
+                                       "N) before the trigger")
+    slip_bond_rate: float = F(0.0, ge=0, le=1,
+                              description="Bond rate of the bonds across the sliding surface "
+                                          "after the trigger (0: cut)")
+    slide_friction: Optional[float] = F(None, ge=0, le=5,
+                                        description="Friction coefficient of the slide "
+                                                    "elements after the trigger (default: "
+                                                    "unchanged)")
+    strength_factor: float = F(0.0, ge=0, le=1,
+                               description="Factor on the slide elements' bond strength (xb, "
+                                           "fs0) at the trigger (0: their bonds are cut)")
+    damping_ratio: float = F(0.0, ge=0, le=1,
+                             description="Mass damping of the slide during the runout, "
+                                         "fraction of critical (0: none)")
+    ground_damping_ratio: float = F(0.0, ge=0, le=1,
+                                    description="Mass damping of the ground (every free element "
+                                                "outside the slide) during the runout, fraction "
+                                                "of critical: stands in for the waves a bounded "
+                                                "model cannot radiate away (0: none)")
+
+    def check(self, cfg, groups):
+        if "slide" not in groups:
+            return [((), "the landslide step needs a model with a 'slide' group (model type "
+                         "landslide)")]
+        if self.min_time >= self.max_time:
+            return [(("min_time",), f"must be below max_time = {self.max_time:g} s")]
+        return []
+
+    def _settle_steps(self, plan):
+        from geodem.core import timestep
+
+        return timestep.standard_balance_steps(plan.n_across) if self.settle else 0
+
+    def _before(self, ctx, slide):
+        self._trigger(ctx, slide)
+
+    def _trigger(self, ctx, slide):
+        from geodem.core import timestep
+        from geodem.core.state import BONDED
+
+        st = ctx.state
+        sl = np.zeros(st.n, bool)
+        sl[slide] = True
+        nb = st.nbr
+        cross = (nb >= 0) & (st.cstate == BONDED) & (sl[:, None] != sl[np.maximum(nb, 0)])
+        i, j = np.nonzero(cross)
+        pairs = [(a, b) for a, b in zip(i.tolist(), nb[i, j].tolist()) if a < b]
+        if self.slip_bond_rate == 0.0:
+            cut = ctx.sim.cut([p[0] for p in pairs], [p[1] for p in pairs]) if pairs else 0
+        else:
+            cut = 0
+        inner = (nb >= 0) & (st.cstate == BONDED) & sl[:, None] & sl[np.maximum(nb, 0)]
+        ii, jj = np.nonzero(inner)
+        inner_pairs = [(a, b) for a, b in zip(ii.tolist(), nb[ii, jj].tolist()) if a < b]
+        if self.strength_factor == 0.0 and inner_pairs:
+            cut += ctx.sim.cut([p[0] for p in inner_pairs], [p[1] for p in inner_pairs])
+        crit = timestep.element_critical_damping(ctx.state)
+        eta = np.where(sl, self.damping_ratio, self.ground_damping_ratio) * crit
+
+        def trigger(s):
+            if self.slip_bond_rate > 0.0:
+                s.brate[cross] = self.slip_bond_rate
+            if self.slide_friction is not None:
+                s.mu[slide] = self.slide_friction
+            if self.strength_factor > 0.0:
+                s.xb[slide] *= self.strength_factor
+                s.fs0[slide] *= self.strength_factor
+            s.eta[:] = eta
+
+        ctx.decree(trigger, "slide")
+        across = "cut" if self.slip_bond_rate == 0 else f"at rate {self.slip_bond_rate:g}"
+        in_slide = "cut" if self.strength_factor == 0 else f"x {self.strength_factor:g}"
+        fric = self.slide_friction if self.slide_friction is not None else "kept"
+        ctx.log(f"trigger at t = {ctx.state.time:.4g} s: {len(pairs)} bonds across the sliding "
+                f"surface {across}, {len(inner_pairs)} slide bonds {in_slide}, "
+                f"slide friction {fric} ({cut} bonds cut in all)")
 
 
 def to_crs(x, meta) -> np.ndarray:

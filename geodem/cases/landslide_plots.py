@@ -58,10 +58,7 @@ def _section_view(ax, ref, r, slide, xs, speed, info, vmax, title):
     _discs(ax, ref[ground], r[ground], "0.8", edgecolors="none")
     coll = _discs(ax, xs, r[slide], speed, cmap="plasma", edgecolors="none")
     coll.set_clim(0.0, vmax)
-    prof = info.get("profile")
-    if prof:
-        ax.plot(prof["s"], prof["top"], "k-", lw=0.7)
-        ax.plot(prof["s"], prof["slip"], "k--", lw=0.6)
+    _profile_lines(ax, info.get("profile"), 0.7, labels=False)
     ax.set_xlim(ref[:, 0].min() - r.max(), ref[:, 0].max() + r.max())
     ax.set_ylim(info["base_z"], max(ref[:, 1].max(), xs[:, 1].max()) + 3 * r.max())
     ax.set_aspect("equal")
@@ -102,10 +99,7 @@ def deposit_map(path, dim, ref, r, slide, x0, x, moved, info, res):
         cols = np.where(moved[:, None], np.array([[0.84, 0.15, 0.16, 1.0]]),
                         np.array([[0.4, 0.4, 0.4, 1.0]]))
         _discs(ax, x, r[slide], cols, edgecolors="none")
-        prof = info.get("profile")
-        if prof:
-            ax.plot(prof["s"], prof["top"], "k-", lw=0.8, label="ground before")
-            ax.plot(prof["s"], prof["slip"], "k--", lw=0.7, label="sliding surface")
+        _profile_lines(ax, info.get("profile"), 0.8, labels=True)
         sgn = res["direction"][0]
         if res.get("travel_angle_deg") is not None:
             xc, xt = sgn * res["crown_h"], sgn * res["front_h"]
@@ -200,3 +194,19 @@ def animation(path, dim, ref, r, slide, frames, n, info):
         images.append(figure_rgb(fig))
     plt.close(fig)
     return save_gif(path, images, fps=8)
+
+
+def _profile_lines(ax, prof, lw, labels):
+    """The ground before (solid) and the sliding surface (dashed) along a 2-D section: the
+    landslide model's ``slip``, or a terrain scene's surface regions (``surfaces``)."""
+    if not prof:
+        return
+    ax.plot(prof["s"], prof["top"], "k-", lw=lw, label="ground before" if labels else None)
+    if "slip" in prof:
+        lines = {"sliding surface": prof["slip"]}
+    else:  # a scene's surface regions: one is the sliding surface
+        found = prof.get("surfaces") or {}
+        lines = ({"sliding surface": z for z in found.values()} if len(found) == 1
+                 else {f"surface of {name}": z for name, z in found.items()})
+    for name, z in lines.items():
+        ax.plot(prof["s"], z, "k--", lw=lw - 0.1, label=name if labels else None)

@@ -106,18 +106,20 @@ class SceneSurface(Strict):
         return [(k, getattr(self, k)) for k in ("raster", "depth_raster")
                 if getattr(self, k) is not None]
 
+    def elevation(self, xy, frame) -> np.ndarray:
+        """The surface's elevation [m] at local raster points ``xy`` (M, 2)."""
+        if self.raster is not None:
+            return frame.raster(self.raster).elevation(xy)
+        if self.depth is not None:
+            return frame.ground(xy) - self.depth
+        return frame.ground(xy) - frame.raster(self.depth_raster).elevation(xy)
+
     def mask(self, x, frame) -> np.ndarray:
         """Centres ``x`` (model frame) on the surface's ``side``; ``frame``: the terrain domain's
         :class:`TerrainFrame`."""
         if frame is None:
             raise ValueError("a surface shape needs a terrain domain")
-        xy = frame.plan(x)
-        if self.raster is not None:
-            z = frame.raster(self.raster).elevation(xy)
-        elif self.depth is not None:
-            z = frame.ground(xy) - self.depth
-        else:
-            z = frame.ground(xy) - frame.raster(self.depth_raster).elevation(xy)
+        z = self.elevation(frame.plan(x), frame)
         return x[:, -1] > z if self.side == "above" else x[:, -1] < z
 
 
@@ -677,7 +679,45 @@ class Scene(ModelBase):
         info["elements_by_region"] = {labels[k]: int((region == k).sum())
                                       for k in range(len(labels))
                                       if k == 0 or slots[k - 1][1] is not None}
+        if self.domain.terrain is not None:
+            info.update(self._terrain_info(st))
         return BuiltModel(st, st.x.copy(), self.n_across(), info)
+
+    def _terrain_info(self, st) -> dict:
+        """What a terrain scene's results and pictures need of the terrain: ``base_z`` [m],
+        ``georef`` (the elevation raster's CRS and transform, the local origin; 2-D: the
+        section line in local and CRS coordinates), ``solid_fraction`` (element volume over the
+        ground's volume) and, in 2-D, ``profile`` (``s``, the ground ``top`` and each surface
+        region's elevation under ``surfaces`` along the section)."""
+        model, frame = self._terrain(), self.frame()
+        top = frame.top
+        zb = float(model.base_z)
+        meta = top.metadata()
+        if self.dim == 2:
+            p0, p1 = (np.asarray(p, float) for p in model.line)
+            meta["line_local"] = [p0.tolist(), p1.tolist()]
+            meta["line_crs"] = [list(top.to_global(p0)), list(top.to_global(p1))]
+            s_top = np.linspace(0.0, float(model.extent[1]), 400)
+            xy = p0 + s_top[:, None] * (p1 - p0) / float(model.extent[1])
+            ground = top.elevation(xy)
+            surfaces = {}
+            for k, reg in enumerate(self.regions):
+                if reg.shape is not None and reg.shape.surface is not None:
+                    surfaces[reg.name or f"region {k}"] = \
+                        reg.shape.surface.elevation(xy, frame).tolist()
+            profile = {"s": s_top.tolist(), "top": ground.tolist(), "surfaces": surfaces}
+            bulk = float(np.trapezoid(np.maximum(ground - zb, 0.0), s_top))
+            solid = float(np.sum(np.pi * st.r ** 2))
+        else:
+            profile = None
+            e = model.extent
+            c = top.centres().reshape(-1, 2)
+            inside = (c[:, 0] >= e[0]) & (c[:, 0] <= e[2]) & (c[:, 1] >= e[1]) & \
+                (c[:, 1] <= e[3])
+            bulk = float(np.sum(top.z.reshape(-1)[inside] - zb) * top.dx * top.dy)
+            solid = float(np.sum(4.0 / 3.0 * np.pi * st.r ** 3))
+        return {"base_z": zb, "georef": meta, "profile": profile,
+                "solid_fraction": float(min(1.0, solid / bulk)) if bulk > 0 else None}
 
     def _lattice(self, lo, hi):
         """Centres of the close-packed lattice over the bounding box ``lo, hi``, cut by the
