@@ -747,6 +747,11 @@ def calibrate_cmd(
         "--packings", min=1, max=10, help="Measure every iteration on this many packings "
                                           "(seeds SEED, SEED+1, ...) and match their mean "
                                           "(that many times the cost).")] = 1,
+    jobs: Annotated[Optional[int], typer.Option(
+        "--jobs", min=1, max=64, help="With --packings: processes that measure the packings "
+                                      "side by side, one numba thread each (default: one per "
+                                      "numba thread; 1: one after another). The results do "
+                                      "not depend on it.")] = None,
     fit: FitOpt = None,
     disc_diameter: DiscDiameterOpt = None,
     disc_drop: DiscDropOpt = None,
@@ -780,7 +785,7 @@ def calibrate_cmd(
                                ucs_size=size, seed=seed, iterations=iterations,
                                backend=backend, prefer=prefer, structure=structure,
                                check_reach=not force, friction=friction,
-                               packings=packings, fit=fit or "elastic",
+                               packings=packings, fit=fit or "elastic", jobs=jobs,
                                **_disc_options(disc_diameter, disc_drop))
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)

@@ -228,6 +228,11 @@ class CalibrationSpec:
     # the 10-50 % window below the crack-initiation stress; docs/calibration.md, "Elastic
     # constants before the cracks") or 'window' (the whole window, cracks and all)
     fit: str = "elastic"
+    # processes that measure the packings side by side, one numba thread each (None: one per
+    # numba thread, so the machine's threads stay what NUMBA_NUM_THREADS says; 1: one after
+    # another in this process). The results do not depend on it: a run's numbers do not
+    # depend on its thread count
+    jobs: int | None = None
 
     def __post_init__(self):
         if self.dim not in (2, 3):
@@ -236,6 +241,8 @@ class CalibrationSpec:
             raise ValueError(f"packings = {self.packings!r}: allowed 1-10")
         if not 1 <= int(self.iterations) <= 20:
             raise ValueError(f"iterations = {self.iterations!r}: allowed 1-20")
+        if self.jobs is not None and not 1 <= int(self.jobs) <= 64:
+            raise ValueError(f"jobs = {self.jobs!r}: allowed 1-64")
         if not 0.5 <= float(self.disc_drop) < 1.0:
             raise ValueError(f"disc_drop = {self.disc_drop!r}: allowed 0.5 <= drop < 1")
         from geodem.cases.uniaxial import FITS
@@ -677,8 +684,9 @@ def over_packings(fn, spec: CalibrationSpec, el: dict, folder: Path) -> dict:
     ``per_packing``. One packing: ``fn`` itself."""
     if spec.packings == 1:
         return fn(spec, el, folder)
-    runs = [fn(replace(spec, seed=spec.seed + k, packings=1), el,
-               Path(folder) / f"packing_{spec.seed + k}") for k in range(spec.packings)]
+    calls = [(replace(spec, seed=spec.seed + k, packings=1), el,
+              Path(folder) / f"packing_{spec.seed + k}") for k in range(spec.packings)]
+    runs = _side_by_side(fn, calls, packing_jobs(spec))
     keys = [k for k, v in runs[0].items() if isinstance(v, (int, float)) and
             not isinstance(v, bool) and all(isinstance(r.get(k), (int, float)) for r in runs)]
     out = {k: float(np.mean([r[k] for r in runs])) for k in keys}
@@ -687,6 +695,42 @@ def over_packings(fn, spec: CalibrationSpec, el: dict, folder: Path) -> dict:
                       if k != "wall_time_s" and np.all(np.isfinite([r[k] for r in runs]))}
     out["per_packing"] = runs
     return out
+
+
+def packing_jobs(spec: CalibrationSpec) -> int:
+    """Processes for the packings: ``spec.jobs``, or one per numba thread (at most one per
+    packing)."""
+    want = spec.jobs if spec.jobs is not None else threads.numba_threads()
+    return max(1, min(int(want), int(spec.packings)))
+
+
+def _call(job):
+    fn, args = job
+    return fn(*args)
+
+
+def _side_by_side(fn, calls, jobs: int) -> list:
+    """``[fn(*a) for a in calls]``, in ``jobs`` fresh processes of one numba thread each when
+    ``jobs`` > 1 and ``fn`` is one of this module's measurements (a process imports it by
+    name). Fresh ("spawn") processes: forking a process whose numba threads have started can
+    hang them."""
+    import os
+
+    if jobs <= 1 or getattr(fn, "__module__", None) != __name__ or "<" in fn.__qualname__:
+        return [fn(*a) for a in calls]
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    saved = os.environ.get("NUMBA_NUM_THREADS")
+    os.environ["NUMBA_NUM_THREADS"] = "1"  # the children read it when they import numba
+    try:
+        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as ex:
+            return list(ex.map(_call, [(fn, a) for a in calls]))
+    finally:
+        if saved is None:
+            os.environ.pop("NUMBA_NUM_THREADS", None)
+        else:
+            os.environ["NUMBA_NUM_THREADS"] = saved
 
 
 def _score(measured, targets, tol, reachable, keys=KEYS):
@@ -817,6 +861,7 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         "wall_time_s": wall,
         "date": time.strftime("%Y-%m-%d", time.gmtime()),
         "threads": threads.numba_threads(),
+        "jobs": packing_jobs(spec),
         "element": best["element"],
         "reachable": reachable,
         "brazilian": brazilian,
