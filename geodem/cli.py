@@ -646,6 +646,11 @@ DiscDropOpt = _float_option(
                               "stored; 0.9 for turning elements).")
 
 
+JobsOpt = Annotated[Optional[int], typer.Option(
+    "--jobs", min=1, max=64, help="With --packings: processes that measure the packings side "
+                                  "by side, one numba thread each (default: one per numba "
+                                  "thread; 1: one after another). The results do not depend "
+                                  "on it.")]
 FitOpt = Annotated[Optional[str], typer.Option(
     "--fit", help="How the UCS test fits E and nu: 'elastic' (default: the part of "
                   "10-50 % of the peak below the crack-initiation stress; "
@@ -747,11 +752,7 @@ def calibrate_cmd(
         "--packings", min=1, max=10, help="Measure every iteration on this many packings "
                                           "(seeds SEED, SEED+1, ...) and match their mean "
                                           "(that many times the cost).")] = 1,
-    jobs: Annotated[Optional[int], typer.Option(
-        "--jobs", min=1, max=64, help="With --packings: processes that measure the packings "
-                                      "side by side, one numba thread each (default: one per "
-                                      "numba thread; 1: one after another). The results do "
-                                      "not depend on it.")] = None,
+    jobs: JobsOpt = None,
     fit: FitOpt = None,
     disc_diameter: DiscDiameterOpt = None,
     disc_drop: DiscDropOpt = None,
@@ -854,6 +855,7 @@ def rock_cmd(
         "mean and standard deviation."))] = 1,
     seed: Annotated[Optional[int], typer.Option("--seed", min=0, help=(
         "Packing seed of the first specimen (default: the calibration's)."))] = None,
+    jobs: JobsOpt = None,
     fit: FitOpt = None,
     disc_diameter: DiscDiameterOpt = None,
     disc_drop: DiscDropOpt = None,
@@ -862,7 +864,7 @@ def rock_cmd(
 ):
     import json
 
-    from geodem.studies.calibrate import CalibrationSpec
+    from geodem.studies.calibrate import CalibrationSpec, jobs_for, rock_packings
     from geodem.materials import STRUCTURE_KEYS
     from geodem.materials_library import load_material
 
@@ -896,13 +898,12 @@ def rock_cmd(
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
     con = _out()
     con.print(f"measuring {mat.name} ({dim}-D, {structure}) -> {out}", highlight=False)
-    runs = []
-    for spec in specs:
-        folder = o if packings == 1 else o / f"packing_{spec.seed}"
-        runs.append(_rock_once(spec, el, folder, friction))
-        (folder / "summary.json").write_text(json.dumps(runs[-1], indent=2))
+    folders = [o if packings == 1 else o / f"packing_{spec.seed}" for spec in specs]
+    runs = rock_packings(specs, el, folders, friction, jobs_for(packings, jobs))
+    for spec, folder, run in zip(specs, folders, runs):
+        (folder / "summary.json").write_text(json.dumps(run, indent=2))
         prefix = "" if packings == 1 else f"seed {spec.seed}: "
-        con.print(prefix + _rock_line(runs[-1]), highlight=False)
+        con.print(prefix + _rock_line(run), highlight=False)
     if packings > 1:
         spread = _rock_spread(runs)
         (o / "summary.json").write_text(json.dumps(
@@ -922,30 +923,6 @@ def _check_fit(fit) -> None:
 
     if fit is not None and fit not in FITS:
         _fail(f"--fit {fit!r}: allowed: {' or '.join(FITS)}", USER_ERROR)
-
-
-def _rock_once(spec, el, folder, friction: bool) -> dict:
-    """One packing of ``geodem rock``: the UCS, direct-tension and Brazilian runs (and the
-    friction test) in ``folder``; returns its summary."""
-    from geodem.studies.calibrate import (brazilian_check, friction_angle, measure,
-                                           measure_friction)
-
-    m = measure(spec, el, folder)
-    b = brazilian_check(spec, el, folder / "brazilian")
-    t = spec.targets
-    summary = {"material": spec.name, "dim": spec.dim, "seed": spec.seed,
-               "structure": spec.structure, "element": el,
-               "measured": {k: m[k] for k in ("E", "nu", "Cu", "Tu")},
-               "targets": {k: t[k] for k in ("E", "nu", "Cu", "Tu")},
-               "fit": spec.fit, "fits": m.get("fits", {}),
-               "ratio": m["Cu"] / m["Tu"], "target_ratio": t["Cu"] / t["Tu"],
-               "brazilian": b, "wall_time_s": m["wall_time_s"] + b["wall_time_s"]}
-    if friction:
-        f = measure_friction(spec, el, folder / "triaxial")
-        summary.update(friction_test=f if math.isfinite(f["phi"]) else dict(f, phi=None),
-                       target_phi=friction_angle(t["mu_i"]),
-                       wall_time_s=summary["wall_time_s"] + f["wall_time_s"])
-    return summary
 
 
 def _rock_line(r: dict) -> str:

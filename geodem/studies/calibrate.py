@@ -698,10 +698,15 @@ def over_packings(fn, spec: CalibrationSpec, el: dict, folder: Path) -> dict:
 
 
 def packing_jobs(spec: CalibrationSpec) -> int:
-    """Processes for the packings: ``spec.jobs``, or one per numba thread (at most one per
-    packing)."""
-    want = spec.jobs if spec.jobs is not None else threads.numba_threads()
-    return max(1, min(int(want), int(spec.packings)))
+    """Processes for the packings of ``spec`` (:func:`jobs_for`)."""
+    return jobs_for(int(spec.packings), spec.jobs)
+
+
+def jobs_for(packings: int, jobs: int | None) -> int:
+    """Processes for ``packings`` packings: ``jobs``, or one per numba thread; at most one
+    per packing."""
+    want = jobs if jobs is not None else threads.numba_threads()
+    return max(1, min(int(want), int(packings)))
 
 
 def _call(job):
@@ -731,6 +736,34 @@ def _side_by_side(fn, calls, jobs: int) -> list:
             os.environ.pop("NUMBA_NUM_THREADS", None)
         else:
             os.environ["NUMBA_NUM_THREADS"] = saved
+
+
+def measure_rock(spec: CalibrationSpec, el: dict, folder: Path, friction: bool) -> dict:
+    """One packing of ``geodem rock``: the UCS, direct-tension and Brazilian runs (and the
+    friction test) in ``folder``; returns its summary."""
+    m = measure(spec, el, folder)
+    b = brazilian_check(spec, el, folder / "brazilian")
+    t = spec.targets
+    summary = {"material": spec.name, "dim": spec.dim, "seed": spec.seed,
+               "structure": spec.structure, "element": el,
+               "measured": {k: m[k] for k in ("E", "nu", "Cu", "Tu")},
+               "targets": {k: t[k] for k in ("E", "nu", "Cu", "Tu")},
+               "fit": spec.fit, "fits": m.get("fits", {}),
+               "ratio": m["Cu"] / m["Tu"], "target_ratio": t["Cu"] / t["Tu"],
+               "brazilian": b, "wall_time_s": m["wall_time_s"] + b["wall_time_s"]}
+    if friction:
+        f = measure_friction(spec, el, folder / "triaxial")
+        summary.update(friction_test=f if math.isfinite(f["phi"]) else dict(f, phi=None),
+                       target_phi=friction_angle(t["mu_i"]),
+                       wall_time_s=summary["wall_time_s"] + f["wall_time_s"])
+    return summary
+
+
+def rock_packings(specs, el: dict, folders, friction: bool, jobs: int) -> list:
+    """:func:`measure_rock` of each spec (one packing each) in its folder, ``jobs`` side by
+    side (:func:`_side_by_side`)."""
+    return _side_by_side(measure_rock, [(s, el, Path(f), friction)
+                                        for s, f in zip(specs, folders)], jobs)
 
 
 def _score(measured, targets, tol, reachable, keys=KEYS):

@@ -26,6 +26,8 @@ def fake_runs(monkeypatch):
         phi = math.inf if spec.seed == 99 else 30.0 + 2.0 * spec.seed
         return {"phi": phi, "peak_0": 1.0, "peak_c": 2.0, "sigma3": 1.0, "wall_time_s": 1.0}
 
+    # made-up responses live in this process: no packing measured in a process of its own
+    monkeypatch.setattr(C, "jobs_for", lambda packings, jobs: 1)
     monkeypatch.setattr(C, "measure", measure)
     monkeypatch.setattr(C, "brazilian_check", brazilian)
     monkeypatch.setattr(C, "measure_friction", friction)
