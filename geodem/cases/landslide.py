@@ -473,12 +473,10 @@ class Landslide(ModelBase):
                        "slip": surface_function(slip, top.elevation)(xy).tolist()}
             bulk = float(np.trapezoid(np.maximum(np.array(profile["top"]) - zb, 0), s_top))
         else:
+            from geodem.geo.terrain import block_bulk_volume
+
             profile = None
-            e = model.extent
-            c = top.centres().reshape(-1, 2)
-            inside = (c[:, 0] >= e[0]) & (c[:, 0] <= e[2]) & (c[:, 1] >= e[1]) & \
-                (c[:, 1] <= e[3])
-            bulk = float(np.sum(top.z.reshape(-1)[inside] - zb) * top.dx * top.dy)
+            bulk = block_bulk_volume(top, model.extent, zb)
         thickness = 2.0 * st.r if dim == 2 else None
         vol = math.pi * st.r ** 2 * thickness if dim == 2 else 4.0 / 3.0 * math.pi * st.r ** 3
         info = {"diameter": d, "dim": dim, "base_z": zb, "georef": meta, "profile": profile,

@@ -51,6 +51,7 @@ from geodem.geo.errors import GeometryError
 from geodem.geo.raster import Terrain
 
 __all__ = ["Depth", "Below", "TerrainModel", "terrain_model", "surface_function",
+           "block_bulk_volume",
            "slip_surface_from_pair", "band_size_field", "ELEMENT_KEYS"]
 
 SQRT2_3 = math.sqrt(2.0 / 3.0)
@@ -595,3 +596,13 @@ def terrain_model(top, d, *, base_z=None, base_depth=None, layers=(), body="rock
     return TerrainModel(x=x, r=rr, dim=dim, d=d, layer=layer, names=names, masks=masks,
                         top_z=top_z, base_z=zb, extent=ext if dim == 3 else lat_extent,
                         line=line, metadata=meta, info=info)
+
+
+def block_bulk_volume(top, extent, base_z: float) -> float:
+    """Volume [m^3] between the base ``base_z`` and the ground of elevation raster ``top`` over
+    the local ``extent`` ``(xmin, ymin, xmax, ymax)`` of a 3-D terrain block (the cells whose
+    centres lie inside it)."""
+    c = top.centres().reshape(-1, 2)
+    e = extent
+    inside = (c[:, 0] >= e[0]) & (c[:, 0] <= e[2]) & (c[:, 1] >= e[1]) & (c[:, 1] <= e[3])
+    return float(np.sum(top.z.reshape(-1)[inside] - base_z) * top.dx * top.dy)

@@ -689,6 +689,8 @@ class Scene(ModelBase):
         section line in local and CRS coordinates), ``solid_fraction`` (element volume over the
         ground's volume) and, in 2-D, ``profile`` (``s``, the ground ``top`` and each surface
         region's elevation under ``surfaces`` along the section)."""
+        from geodem.geo.terrain import block_bulk_volume
+
         model, frame = self._terrain(), self.frame()
         top = frame.top
         zb = float(model.base_z)
@@ -710,11 +712,7 @@ class Scene(ModelBase):
             solid = float(np.sum(np.pi * st.r ** 2))
         else:
             profile = None
-            e = model.extent
-            c = top.centres().reshape(-1, 2)
-            inside = (c[:, 0] >= e[0]) & (c[:, 0] <= e[2]) & (c[:, 1] >= e[1]) & \
-                (c[:, 1] <= e[3])
-            bulk = float(np.sum(top.z.reshape(-1)[inside] - zb) * top.dx * top.dy)
+            bulk = block_bulk_volume(top, model.extent, zb)
             solid = float(np.sum(4.0 / 3.0 * np.pi * st.r ** 3))
         return {"base_z": zb, "georef": meta, "profile": profile,
                 "solid_fraction": float(min(1.0, solid / bulk)) if bulk > 0 else None}
