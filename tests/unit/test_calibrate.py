@@ -235,13 +235,20 @@ def test_turning_elements_take_the_rotation_prior():
     s0, nu0, _ = C.PRIOR_ROTATION[2]["s_of_nu"]
     assert turning["ks_per_d"] / turning["kn_per_d"] == pytest.approx(s0, rel=1e-9)
     assert plain["ks_per_d"] / plain["kn_per_d"] == pytest.approx(0.5, rel=1e-9)
-    # phi 35 deg: at the lower end of the table for turning elements (mu 0.15), beyond the
-    # upper end for translation only (mu 0.6)
+    # phi 35 deg: just below the table for turning elements (35.4 deg at mu 0.15, 39.9 at
+    # 0.35), beyond its upper end for translation only (31.5 deg at 0.6, 20.6 at 0.25): the
+    # end segments continued in ln mu
     sand = dict(TARGETS, mu_i=math.tan(math.radians(35.0)))
     mu_rot = C.prior_guess(C.CalibrationSpec(targets=sand, structure=rot, friction=True))["mu"]
     mu_plain = C.prior_guess(C.CalibrationSpec(targets=sand, friction=True))["mu"]
-    assert mu_rot == pytest.approx(0.15, rel=1e-6)
-    assert mu_plain == pytest.approx(0.6, rel=1e-6)
+    assert mu_rot == pytest.approx(0.15 * math.exp(-0.4 / (4.5 / math.log(0.35 / 0.15))),
+                                   rel=1e-6)  # 0.139
+    assert mu_plain == pytest.approx(0.6 * math.exp(3.5 / (10.9 / math.log(0.6 / 0.25))),
+                                     rel=1e-6)  # 0.795
+    # a mudstone's 28 deg lies below the search bound on turning elements
+    mud = dict(TARGETS, mu_i=math.tan(math.radians(28.0)))
+    assert C.prior_guess(C.CalibrationSpec(targets=mud, structure=rot, friction=True))["mu"] \
+        == pytest.approx(C.MU_RANGE[0])
     # 3-D has no rotation table yet: the translation prior
     assert C.prior_table(3, rot) == C.PRIOR[3]
 
