@@ -638,12 +638,12 @@ RollingStiffnessOpt = _float_option(
                                       "beta x Ks R*^2 (default 1; switches rotation on; "
                                       "raises Cu / Tu).")
 DiscDiameterOpt = _float_option(
-    "--disc-diameter", 0.01, 10.0, "Diameter of the Brazilian check disc [m] (default 0.1, "
-                                   "or as stored).")
+    "--disc-diameter", 0.01, 10.0, "Diameter of the Brazilian check disc [m] (default 40 "
+                                   "d_mean in 2-D, 10 in 3-D, or as stored).")
 DiscDropOpt = _float_option(
     "--disc-drop", 0.5, 0.99, "The Brazilian check stops when the load falls below this x "
-                              "its peak with a crack near the centre (default 0.8, or as "
-                              "stored; 0.9 for turning elements).")
+                              "its peak with a crack near the centre (default 0.9 for "
+                              "turning elements, else 0.8, or as stored).")
 
 
 JobsOpt = Annotated[Optional[int], typer.Option(

@@ -196,12 +196,13 @@ class CalibrationSpec:
     dim: int = 2
     d_mean: float = 0.005
     ucs_size: tuple = (0.1, 0.2)
-    disc_diameter: float = 0.1
+    # the Brazilian check's disc [m]; None: 40 d_mean across in 2-D (a smaller disc cracks
+    # under its platens first: docs/calibration.md, "Rolling stiffness"), 10 in 3-D
+    disc_diameter: float | None = None
     # the Brazilian check stops at a load drop below disc_drop x its peak with a crack near
-    # the centre (the brazilian step's drop): 0.9 catches the split of a 2-D disc of turning
-    # elements, whose halves stay between the platens (docs/calibration.md, "Rolling
-    # stiffness")
-    disc_drop: float = 0.8
+    # the centre (the brazilian step's drop); None: 0.9 for turning elements (it catches the
+    # split of a disc whose halves stay between the platens), else 0.8 (brazilian.yaml's)
+    disc_drop: float | None = None
     distri_rate: float = 0.2
     seed: int = 0
     strain_rate: float = 0.2
@@ -245,6 +246,10 @@ class CalibrationSpec:
             raise ValueError(f"iterations = {self.iterations!r}: allowed 1-20")
         if self.jobs is not None and not 1 <= int(self.jobs) <= 64:
             raise ValueError(f"jobs = {self.jobs!r}: allowed 1-64")
+        if self.disc_diameter is None:
+            self.disc_diameter = (40.0 if self.dim == 2 else 10.0) * float(self.d_mean)
+        if self.disc_drop is None:
+            self.disc_drop = 0.9 if self.structure.get("rotation") else 0.8
         if not 0.5 <= float(self.disc_drop) < 1.0:
             raise ValueError(f"disc_drop = {self.disc_drop!r}: allowed 0.5 <= drop < 1")
         from geodem.cases.uniaxial import FITS
@@ -618,7 +623,7 @@ def _brazilian_workflow(spec, el):
             "model": model,
             "materials": {"rock": _material_block(spec, el)},
             "steps": [{"kind": "brazilian", "name": "brazilian", "loading_rate": 0.1,
-                       "max_strain": 0.01, "drop": spec.disc_drop}],  # 0.8: brazilian.yaml
+                       "max_strain": 0.01, "drop": spec.disc_drop}],
             "outputs": {"observables": {"every": 1000}}}
 
 

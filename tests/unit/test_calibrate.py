@@ -71,15 +71,20 @@ def test_bad_spec_is_refused():
 
 def test_the_brazilian_check_disc_follows_the_spec_and_the_options():
     """The check disc's diameter and stop (``--disc-diameter``, ``--disc-drop``): the options
-    given, else the stored specimen's, else the defaults 0.1 m and 0.8."""
+    given, else the stored specimen's, else the defaults: 40 d_mean across in 2-D, 10 in 3-D;
+    drop 0.9 for turning elements, 0.8 else."""
     from geodem.cli import _disc_options
 
     wf = C._brazilian_workflow(C.CalibrationSpec(targets=TARGETS), {"kn": 1.0})
-    assert wf["model"]["diameter"] == 0.1 and wf["steps"][0]["drop"] == 0.8
-    opts = _disc_options(0.2, None, {"disc_diameter": 0.1, "disc_drop": 0.9})
-    assert opts == {"disc_diameter": 0.2, "disc_drop": 0.9}
+    assert wf["model"]["diameter"] == pytest.approx(0.2) and wf["steps"][0]["drop"] == 0.8
+    turning = C.CalibrationSpec(targets=TARGETS, structure={"rotation": True})
+    assert turning.disc_drop == 0.9
+    spec3 = C.CalibrationSpec(targets=TARGETS, dim=3, d_mean=0.01, ucs_size=(0.1, 0.1, 0.2))
+    assert spec3.disc_diameter == pytest.approx(0.1) and spec3.disc_drop == 0.8
+    opts = _disc_options(0.15, None, {"disc_diameter": 0.1, "disc_drop": 0.9})
+    assert opts == {"disc_diameter": 0.15, "disc_drop": 0.9}
     wf = C._brazilian_workflow(C.CalibrationSpec(targets=TARGETS, **opts), {"kn": 1.0})
-    assert wf["model"]["diameter"] == 0.2 and wf["steps"][0]["drop"] == 0.9
+    assert wf["model"]["diameter"] == 0.15 and wf["steps"][0]["drop"] == 0.9
     assert _disc_options(None, None) == {} and _disc_options(None, 0.95) == {"disc_drop": 0.95}
 
 
