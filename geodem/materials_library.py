@@ -198,8 +198,9 @@ def load_material(name_or_path: str | Path) -> Material:
 
 
 #: the columns of :func:`calibration_cells` (``geodem library``, docs/calibration.md)
-CALIBRATION_COLUMNS = ("material (lab E, nu, Cu, Tu)", "fit", "best iteration", "E", "nu",
-                       "Cu (UCS)", "Tu (direct tension)", "Brazilian / Tu", "run")
+CALIBRATION_COLUMNS = ("material (lab E, nu, Cu, Tu, phi)", "elements", "best iteration", "E",
+                       "nu", "Cu (UCS)", "Tu (direct tension)", "phi (triaxial)",
+                       "Brazilian / Tu (disc)", "run")
 
 
 def calibration_rows(dim: int, names: list[str] | None = None) -> list[dict]:
@@ -219,25 +220,43 @@ def calibration_rows(dim: int, names: list[str] | None = None) -> list[dict]:
     return rows
 
 
+def _elements_cell(spec: dict) -> str:
+    """The micro-structure of a calibration record in a few words."""
+    if not spec.get("rotation"):
+        return "translating"
+    return (f"turning (bond moment {_g(spec.get('bond_moment', 0.0))}, rolling stiffness "
+            f"{_g(spec.get('rolling_stiffness', 1.0))})")
+
+
 def calibration_cells(row: dict) -> list[str]:
     """The :data:`CALIBRATION_COLUMNS` of one :func:`calibration_rows` row as text: each value
-    with its error against the lab value, the UCS fit, the iterations, the Brazilian check and
-    the run (date, wall time, threads)."""
+    with its error against the lab value, the micro-structure, the iterations, the friction
+    angle (where the calibration matched it), the Brazilian check and its disc (elements
+    across), and the run (date, wall time, threads)."""
+    import math
+
     t, rec = row["targets"], row["record"]
+    phi_lab = math.degrees(math.atan(t["mu_i"]))
     lab = (f"{row['name']} ({_g(t['E'] / 1e9)} GPa, {t['nu']:g}, {_g(t['Cu'] / 1e6)} MPa, "
-           f"{_g(t['Tu'] / 1e6)} MPa)")
+           f"{_g(t['Tu'] / 1e6)} MPa, {phi_lab:.0f} deg)")
     if not rec:
-        return [lab, f"no {row['dim']}-D calibration"] + [""] * 7
-    m, e = rec["measured"], row["errors"]
+        return [lab, f"no {row['dim']}-D calibration"] + [""] * (len(CALIBRATION_COLUMNS) - 2)
+    m, e, spec = rec["measured"], row["errors"], rec.get("specimen", {})
     state = "converged" if rec["converged"] else "not converged"
     run = rec.get("run") or {}
     when = (f"{run['date']}, {run['wall_time_s']:.0f} s on {run['threads']} thread"
             f"{'s' if run.get('threads') != 1 else ''}" if run else "")
-    cells = [lab, rec.get("specimen", {}).get("fit", "window"),
+    phi = m.get("phi")
+    phi_cell = (f"{phi:.1f} deg ({phi - phi_lab:+.1f})" if phi is not None
+                else "not matched")
+    braz = rec.get("brazilian") or {}
+    across = (f", {spec['disc_diameter'] / spec['d_mean']:.0f} across"
+              if spec.get("disc_diameter") and spec.get("d_mean") else "")
+    cells = [lab, _elements_cell(spec),
              f"{rec.get('best_iteration', rec['iterations'])} of {rec['iterations']} ({state})",
              f"{_g(m['E'] / 1e9)} GPa ({e['E']:+.1%})", f"{m['nu']:.3f} ({e['nu']:+.3f})",
              f"{_g(m['Cu'] / 1e6)} MPa ({e['Cu']:+.1%})", f"{_g(m['Tu'] / 1e6)} MPa ({e['Tu']:+.1%})",
-             f"{(rec.get('brazilian') or {}).get('over_target', float('nan')):.2f}", when]
+             phi_cell, f"{braz.get('over_target', float('nan')):.2f}{across}", when]
     return [c.replace("%)", " %)") for c in cells]
 
 

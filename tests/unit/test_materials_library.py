@@ -157,7 +157,16 @@ def test_calibration_table_by_hand(tmp_path):
     assert e["Tu"] == pytest.approx(0.05) and e["nu"] == pytest.approx(-0.015)
     assert rows[1]["record"] is None
     text = calibration_markdown(2, [done, bare])
-    assert ("| sandstone (15 GPa, 0.2, 75 MPa, 4 MPa) | elastic | 3 of 4 (converged) | "
-            "15.3 GPa (+2.0 %) | 0.185 (-0.015) | 72 MPa (-4.0 %) | 4.2 MPa (+5.0 %) | 1.10 | "
-            "2026-12-04, 45 s on 1 thread |") in text
-    assert "| bare (15 GPa, 0.2, 75 MPa, 4 MPa) | no 2-D calibration |" in text
+    assert ("| sandstone (15 GPa, 0.2, 75 MPa, 4 MPa, 35 deg) | translating | 3 of 4 "
+            "(converged) | 15.3 GPa (+2.0 %) | 0.185 (-0.015) | 72 MPa (-4.0 %) | 4.2 MPa "
+            "(+5.0 %) | not matched | 1.10") in text
+    assert "2026-12-04, 45 s on 1 thread |" in text
+    assert "| bare (15 GPa, 0.2, 75 MPa, 4 MPa, 35 deg) | no 2-D calibration |" in text
+    # a turning rock that matched its friction angle, checked on a disc 40 elements across
+    rec["measured"]["phi"] = 36.2
+    rec["specimen"].update(rotation=True, bond_moment=100.0, rolling_stiffness=2.0,
+                           d_mean=0.005, disc_diameter=0.2)
+    done = _write(tmp_path, doc, "done.yaml")
+    text = calibration_markdown(2, [done])
+    assert ("| turning (bond moment 100, rolling stiffness 2) | 3 of 4 (converged) |" in text)
+    assert "| 36.2 deg (+1.2) | 1.10, 40 across |" in text
