@@ -861,6 +861,10 @@ def rock_cmd(
     disc_drop: DiscDropOpt = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
+    save: Annotated[bool, typer.Option("--save", help=(
+        "Store this Brazilian check (the mean over the packings, and its disc) in the "
+        "material file's calibration record, in place of the calibration's own; only for "
+        "the stored element parameters and micro-structure."))] = False,
 ):
     import json
 
@@ -874,6 +878,15 @@ def rock_cmd(
     if cal is None:
         _fail(f"{mat.name} has no {dim}-D calibration; run 'geodem calibrate {material} --dim "
               f"{dim} --save' first", USER_ERROR)
+    overrides = [name for name, v in (("--packing", packing), ("--bond-gap", bond_gap),
+                                      ("--bond-weibull", bond_weibull),
+                                      ("--bond-moment", bond_moment),
+                                      ("--rolling-friction", rolling_friction),
+                                      ("--rolling-stiffness", rolling_stiffness),
+                                      ("--fit", fit), ("--seed", seed)) if v is not None]
+    if save and overrides:
+        _fail(f"--save stores a check of the stored calibration: drop {', '.join(overrides)}",
+              USER_ERROR)
     o = _fresh_out_dir(out, overwrite)
     el = dict(cal["element"])
     for key, value in (("packing", packing), ("bond_gap", bond_gap),
@@ -914,6 +927,15 @@ def rock_cmd(
         con.print("mean +- std over the packings: " + ", ".join(
             f"{key} {spread['mean'][key]:.4g} +- {spread['std'][key]:.2g}"
             for key in spread["mean"]), highlight=False)
+    if save:
+        from geodem.materials_library import material_path
+        from geodem.studies.calibrate import save_brazilian_check
+
+        path = material_path(material)
+        check = save_brazilian_check(path, dim, [r["brazilian"] for r in runs],
+                                     specs[0].disc_diameter, specs[0].disc_drop)
+        con.print(f"saved the Brazilian check ({check['over_target']:.3g} x Tu, disc "
+                  f"{specs[0].disc_diameter:g} m) into {path}", highlight=False)
 
 
 def _check_fit(fit) -> None:

@@ -74,6 +74,7 @@ from geodem.materials import macro_to_micro, per_size
 
 __all__ = ["CalibrationSpec", "UnreachableTarget", "calibrate", "check_reachable",
            "brazilian_check", "measure_friction", "friction_angle", "save_calibration",
+           "save_brazilian_check",
            "calibration_block", "to_unknowns", "from_unknowns", "TOLERANCES"]
 
 #: nu absolute, phi absolute [deg], the strengths and E relative
@@ -997,6 +998,9 @@ def calibration_block(summary: dict) -> dict:
                               "crack_start_offset": (None if b["crack_start_offset"] is None
                                                      else round(float(b["crack_start_offset"]),
                                                                 3))}
+        if b.get("per_packing"):  # several packings: each one's, over Tu
+            block["brazilian"]["per_packing"] = [round(float(r["over_target"]), 4)
+                                                 for r in b["per_packing"]]
     f = summary.get("friction_test")
     if f:
         block["friction_test"] = {"phi": (None if not math.isfinite(f["phi"])
@@ -1011,6 +1015,36 @@ def save_calibration(path, summary: dict) -> None:
     """Store :func:`calibration_block` in the material file ``path`` under ``calibrated``
     (other dimensions' entries kept; the rest of the file, comments included, untouched).
     The file is replaced atomically."""
+    _update_calibrated(path, lambda old: old.update(calibration_block(summary)))
+
+
+def save_brazilian_check(path, dim: int, checks: list, disc_diameter: float,
+                         disc_drop: float) -> dict:
+    """Replace the Brazilian check of the stored ``calibrated.<dim>d`` record of the material
+    file ``path`` by ``checks`` (:func:`brazilian_check` on one or more packings of the stored
+    element parameters: their mean) on a disc of ``disc_diameter`` [m] stopped at
+    ``disc_drop``; the record's specimen takes the disc. Returns the new check."""
+    tensile = [float(c["tensile_strength"]) for c in checks]
+    over = [float(c["over_target"]) for c in checks]
+    offsets = [float(c["crack_start_offset"]) for c in checks
+               if c.get("crack_start_offset") is not None]
+    check = {"tensile_strength": float(np.mean(tensile)),
+             "over_target": round(float(np.mean(over)), 4),
+             "crack_start_offset": round(float(np.mean(offsets)), 3) if offsets else None}
+    if len(checks) > 1:
+        check["per_packing"] = [round(v, 4) for v in over]
+
+    def update(old):
+        rec = old[f"{dim}d"]
+        rec["brazilian"] = check
+        rec["specimen"].update(disc_diameter=float(disc_diameter), disc_drop=float(disc_drop))
+    _update_calibrated(path, update)
+    return check
+
+
+def _update_calibrated(path, update) -> None:
+    """Apply ``update(calibrated)`` to the ``calibrated`` block of the material file ``path``
+    (the rest of the file, comments included, untouched); the file is replaced atomically."""
     import os
 
     p = Path(path)
@@ -1026,7 +1060,7 @@ def save_calibration(path, summary: dict) -> None:
         head, tail = lines[:start], lines[end:]
     else:
         head, tail = lines, []
-    old.update(calibration_block(summary))
+    update(old)
     block = yaml.safe_dump({"calibrated": old}, sort_keys=False).rstrip("\n").splitlines()
     new = "\n".join(head + block + tail) + "\n"
     tmp = p.with_suffix(p.suffix + ".tmp")

@@ -246,6 +246,20 @@ def test_calibrate_refuses_a_rock_outside_the_charted_region(tmp_path):
     assert not (tmp_path / "c").exists() and path.read_text() == before
 
 
+def test_rock_save_refuses_a_changed_micro_structure(tmp_path):
+    """``geodem rock --save`` stores a check of the stored calibration only: with a
+    micro-structure override it exits 2 before anything is written."""
+    path = tmp_path / "sandstone.yaml"
+    path.write_text((ROOT / "materials" / "sandstone.yaml").read_text())
+    before = path.read_text()
+    res = invoke("rock", str(path), "-o", str(tmp_path / "r"), "--bond-moment", "10",
+                 "--save")
+    assert res.exit_code == 2, res.output
+    assert "--save stores a check of the stored calibration: drop --bond-moment" in \
+        flat(res.output)
+    assert not (tmp_path / "r").exists() and path.read_text() == before
+
+
 def test_bench_with_nothing_run_exits_2(monkeypatch):
     import geodem.bench
 

@@ -116,6 +116,27 @@ def test_save_calibration_keeps_the_file_and_loads_back(tmp_path):
     assert mat.calibrated["2d"]["element"]["kn_per_d"] == pytest.approx(out["element"]["kn_per_d"])
 
 
+def test_a_new_brazilian_check_replaces_the_stored_one(tmp_path):
+    """``geodem rock NAME --save``: the mean of the packings' checks, each packing's ratio and
+    the disc go into the record; the element parameters and the other dimension stay."""
+    from geodem.materials_library import LIBRARY_DIR, load_material
+
+    p = tmp_path / "sandstone.yaml"
+    p.write_text((LIBRARY_DIR / "sandstone.yaml").read_text())
+    before = load_material(p).calibrated
+    checks = [{"tensile_strength": 4.0e6, "over_target": 1.0, "crack_start_offset": 0.4},
+              {"tensile_strength": 5.0e6, "over_target": 1.25, "crack_start_offset": 0.6}]
+    got = C.save_brazilian_check(p, 2, checks, 0.2, 0.9)
+    assert got == {"tensile_strength": 4.5e6, "over_target": 1.125,
+                   "crack_start_offset": 0.5, "per_packing": [1.0, 1.25]}
+    after = load_material(p).calibrated
+    assert after["2d"]["brazilian"] == got
+    assert after["2d"]["specimen"]["disc_diameter"] == 0.2
+    assert after["2d"]["specimen"]["disc_drop"] == 0.9
+    assert after["2d"]["element"] == before["2d"]["element"]
+    assert after["3d"] == before["3d"]
+
+
 def test_the_brazilian_check_and_the_tensile_test_are_stored_with_the_calibration(tmp_path):
     out = C.calibrate(spec(), tmp_path, measure_fn=synthetic)
     assert out["brazilian"] is None  # a synthetic packing has no disc to check
