@@ -245,6 +245,32 @@ def test_a_friction_angle_the_packing_cannot_peak_at_is_reported(tmp_path):
     assert abs(out["abs_errors"]["nu"]) <= 0.03
 
 
+def test_a_friction_angle_met_at_the_lowest_mu_is_not_given_up(tmp_path):
+    """A packing-averaged phi met (+0.3 deg) at the lowest contact friction, with the solve
+    pointing below it, is not out of reach: when the next measurement reads 2.6 deg low the
+    calibration raises mu instead of stopping as converged on the other four."""
+    phi_t = 28.0
+    calls = []
+
+    def noisy(spec_, el, folder):
+        calls.append(el["mu"])
+        if len(calls) == 1:
+            phi = phi_t + 0.3
+        else:
+            phi = phi_t - 2.6 + 28.0 * math.log(el["mu"] / C.MU_RANGE[0])
+        return {"phi": phi, "peak_0": 1.0, "peak_c": 2.0, "sigma3": 0.1, "wall_time_s": 0.0}
+
+    sp = C.CalibrationSpec(targets=dict(TARGETS, mu_i=math.tan(math.radians(phi_t))),
+                           name="synthetic", friction=True,
+                           structure={"packing": "isotropic", "rotation": True,
+                                      "bond_moment": 100.0})
+    out = C.calibrate(sp, tmp_path, measure_fn=frictional, friction_fn=noisy)
+    assert calls[0] == pytest.approx(C.MU_RANGE[0])  # the prior's mu for 28 deg: the bound
+    assert len(calls) >= 3 and out["reachable"]["phi"] is True
+    assert out["converged"] and abs(out["abs_errors"]["phi"]) <= 2.0
+    assert out["element"]["mu"] > C.MU_RANGE[0]
+
+
 def test_without_friction_the_lattice_mu_is_kept(tmp_path):
     sp = C.CalibrationSpec(targets=TARGETS, name="synthetic")  # friction is opt-in
     out = C.calibrate(sp, tmp_path, measure_fn=frictional, friction_fn=friction_test)
