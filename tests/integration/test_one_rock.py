@@ -74,8 +74,18 @@ def test_over_five_packings_the_triaxial_at_zero_confinement_is_the_ucs_test(tmp
 
 
 def test_the_brazilian_test_gives_the_lab_tensile_strength(tmp_path):
-    s = _shipped(tmp_path, "brazilian")
-    assert s["tensile_strength"] / SANDSTONE["Tu"] == pytest.approx(1.0, abs=0.15)
+    """The shipped disc (40 elements across, split at a 10 % drop) on the three packings the
+    sandstone was calibrated on: their mean within 15 % of the lab Tu. One disc splits from
+    one flaw: measured 2026-12-05, 0.75, 1.30 and 0.92 x Tu on seeds 0-2 (mean 0.99); a
+    translating rock's discs of that size peaked at 2.7-3.4 x (docs/calibration.md)."""
+    ratios = []
+    for seed in range(3):
+        code, s = run_workflow(ROOT / "workflows" / "brazilian.yaml", tmp_path / f"s{seed}",
+                               sets=[f"metadata.seed={seed}"], echo=False, progress=False)
+        assert code == 0 and s["status"] == "ok", s.get("error")
+        assert s["results"]["brazilian"]["stopped_by"] == "drop"  # it split
+        ratios.append(s["tensile_strength"] / SANDSTONE["Tu"])
+    assert sum(ratios) / 3 == pytest.approx(1.0, abs=0.15), ratios
 
 
 def test_the_direct_tension_test_gives_the_lab_tensile_strength(tmp_path):
