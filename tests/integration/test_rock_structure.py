@@ -1,6 +1,6 @@
 """The packing recipe is part of the rock: the same element parameters (the library sandstone's
-2-D calibration, made on the isotropic packing) give the lab's rock on the isotropic packing,
-with the Brazilian disc agreeing with direct tension, and another rock on the deposited one
+2-D calibration, made on the isotropic packing) give the lab's rock on the isotropic packing
+and another, weaker rock on the deposited one
 (docs/calibration.md, "Reaching real rocks"). `geodem rock` measures it. Integration tier:
 about a minute on 2 cores."""
 import json
@@ -23,14 +23,17 @@ def test_the_isotropic_packing_makes_the_calibrated_sandstone_the_deposit_anothe
     iso = _rock(tmp_path, "isotropic")
     dep = _rock(tmp_path, "deposit", "--packing", "deposit")
     assert iso["structure"]["packing"] == "isotropic" and dep["structure"]["packing"] == "deposit"
-    # measured (2-D, 2026-12-04): isotropic Cu / Tu 18.6 (lab 18.8), Brazilian 4.49 MPa
-    # against direct tension 4.07; deposit E -22 %, Cu -17 %, Tu -24 %, Brazilian 8.03 MPa
-    # (2.6 x its Tu)
+    # measured (2-D, turning library sandstone, 2026-12-05): isotropic Cu / Tu 17.8 (lab
+    # 18.8), Brazilian (40 across) 3.01 MPa against direct tension 4.07 on this packing: one
+    # disc splits from one flaw (0.75, 1.30, 0.92 x Tu on seeds 0-2; their mean within 15 % of
+    # Tu is test_one_rock's), so one disc is only held to its packing scatter here
     assert abs(iso["ratio"] / iso["target_ratio"] - 1) < 0.12, iso
-    assert abs(iso["brazilian"]["tensile_strength"] / iso["measured"]["Tu"] - 1) < 0.15, iso
+    assert 0.6 < iso["brazilian"]["tensile_strength"] / iso["measured"]["Tu"] < 1.5, iso
+    # the deposited packing is a weaker rock: Tu 2.91 MPa against 4.07 (its disc, turning
+    # elements too, split at 2.67 MPa, 0.92 x its Tu; translating elements' deposit discs
+    # peaked at 2.6 x theirs)
     for k in ("E", "Cu", "Tu"):
         assert dep["measured"][k] < 0.9 * iso["measured"][k], (k, dep, iso)
-    assert dep["brazilian"]["tensile_strength"] > 1.5 * dep["measured"]["Tu"], dep
 
 
 def test_a_bond_range_on_the_deposited_packing_is_refused(tmp_path):
