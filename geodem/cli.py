@@ -697,6 +697,36 @@ def _phi_text(rec) -> str:
     return f", phi {phi:.1f} deg ({rec['phi_abs_error']:+.1f}, mu {mu:.3g})"
 
 
+def _stored_recipe(mat, dim, *options):
+    """The stored ``calibrated.<dim>d`` record's recipe ``(structure, friction, packings,
+    disc options)`` when the material has one and none of the recipe ``options`` (packing,
+    bond gap, Weibull modulus, bond moment, rolling friction, rolling stiffness, friction,
+    packings) is given: ``geodem calibrate NAME`` repeats the library's calibration. Else
+    None."""
+    from geodem.materials import STRUCTURE_KEYS
+
+    rec = (mat.calibrated or {}).get(f"{dim}d") or {}
+    sp = rec.get("specimen")
+    if not sp or any(v is not None for v in options):
+        return None
+    structure = {k: sp[k] for k in STRUCTURE_KEYS if sp.get(k) is not None}
+    structure.setdefault("packing", "isotropic")
+    disc = {k: float(sp[k]) for k in ("disc_diameter", "disc_drop") if sp.get(k) is not None}
+    return structure, sp.get("friction_test") is not None, int(sp.get("packings", 1)), disc
+
+
+def _recipe_text(spec) -> str:
+    """A calibration's recipe in words (the stored-recipe line of ``geodem calibrate``)."""
+    st = spec.structure
+    elements = ("turning elements (bond moment {:g}, rolling stiffness {:g})".format(
+        st.get("bond_moment", 0.0), st.get("rolling_stiffness", 1.0)) if st.get("rotation")
+        else "translating elements")
+    return (f"{st.get('packing', 'isotropic')} packing, {elements}, "
+            f"{'with' if spec.friction else 'without'} the friction angle, "
+            f"{spec.packings} packing{'s' if spec.packings != 1 else ''}, check disc "
+            f"{spec.disc_diameter:g} m")
+
+
 @app.command("calibrate", help=(
     "Calibrate a library material: find element parameters whose virtual UCS and direct "
     "tension tests give its E, nu, UCS (Cu) and tensile strength (Tu) (with --friction also "
@@ -709,6 +739,9 @@ def _phi_text(rec) -> str:
     "summary.json (targets, measured, rel_errors, iterations, wall_time_s), history.csv, "
     "calibrated.yaml and convergence.png into -o DIR; --save also stores the result in the "
     "material file's 'calibrated' block.\n\n"
+    "A material with a stored calibration for --dim is calibrated again with that one's "
+    "recipe (micro-structure, --friction, --packings, check disc) unless a recipe option is "
+    "given: 'geodem calibrate sandstone' repeats the library's.\n\n"
     "Exit status: 0 converged (or the unreachable targets reported), 1 not converged or a run "
     "failed, 2 invalid input."))
 @_guard
@@ -728,10 +761,9 @@ def calibrate_cmd(
     "Cu",
     save: Annotated[bool, typer.Option("--save", help="Write the result into the material "
                                                       "file's 'calibrated' block.")] = False,
-    packing: Annotated[str, typer.Option("--packing", help="Specimen packing recipe, stored "
-                                                           "with the result: isotropic or "
-                                                           "deposit (2-D only).")] =
-    "isotropic",
+    packing: Annotated[Optional[str], typer.Option(
+        "--packing", help="Specimen packing recipe, stored with the result: isotropic "
+                          "(default) or deposit (2-D only).")] = None,
     bond_gap: BondGapOpt = None,
     bond_weibull: BondWeibullOpt = None,
     bond_moment: BondMomentOpt = None,
@@ -743,15 +775,16 @@ def calibrate_cmd(
                                                         "outside the charted reachable "
                                                         "region (then E, nu and --prefer "
                                                         "are matched).")] = False,
-    friction: Annotated[bool, typer.Option(
-        "--friction", help="Also match the friction angle atan(mu_i) by the contact "
-                           "friction, with a two-stage triaxial test per iteration (without "
-                           "it mu stays at the lattice value from mu_i; docs/calibration.md, "
-                           "'Friction angle').")] = False,
-    packings: Annotated[int, typer.Option(
+    friction: Annotated[Optional[bool], typer.Option(
+        "--friction/--no-friction", help="Also match the friction angle atan(mu_i) by the "
+                                         "contact friction, with a two-stage triaxial test "
+                                         "per iteration (without it mu stays at the lattice "
+                                         "value from mu_i; docs/calibration.md, 'Friction "
+                                         "angle').", show_default=False)] = None,
+    packings: Annotated[Optional[int], typer.Option(
         "--packings", min=1, max=10, help="Measure every iteration on this many packings "
                                           "(seeds SEED, SEED+1, ...) and match their mean "
-                                          "(that many times the cost).")] = 1,
+                                          "(that many times the cost; default 1).")] = None,
     jobs: JobsOpt = None,
     fit: FitOpt = None,
     disc_diameter: DiscDiameterOpt = None,
@@ -779,15 +812,22 @@ def calibrate_cmd(
     if min(size) < 4 * d_mean:
         _fail(f"--d-mean {d_mean:g} m: allowed up to {min(size) / 4:g} m (the specimens are "
               f"{min(size):g} m across and need at least 4 elements)", USER_ERROR)
-    structure = {"packing": packing, "bond_gap": bond_gap, "bond_strength_weibull": bond_weibull,
-                 **_rotation_structure(bond_moment, rolling_friction, rolling_stiffness)}
+    recipe = _stored_recipe(mat, dim, packing, bond_gap, bond_weibull, bond_moment,
+                            rolling_friction, rolling_stiffness, friction, packings)
+    if recipe is not None:
+        structure, friction, packings, disc = recipe
+    else:
+        structure = {"packing": packing or "isotropic", "bond_gap": bond_gap,
+                     "bond_strength_weibull": bond_weibull,
+                     **_rotation_structure(bond_moment, rolling_friction, rolling_stiffness)}
+        friction, packings, disc = bool(friction), packings or 1, {}
+    disc.update(_disc_options(disc_diameter, disc_drop))
     try:
         spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim, d_mean=d_mean,
                                ucs_size=size, seed=seed, iterations=iterations,
                                backend=backend, prefer=prefer, structure=structure,
                                check_reach=not force, friction=friction,
-                               packings=packings, fit=fit or "elastic", jobs=jobs,
-                               **_disc_options(disc_diameter, disc_drop))
+                               packings=packings, fit=fit or "elastic", jobs=jobs, **disc)
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
     if not force:
@@ -798,6 +838,10 @@ def calibrate_cmd(
     con = _out()
     con.print(f"calibrating {mat.name} ({dim}-D specimens, d = {d_mean:g} m) -> {out}",
               highlight=False)
+    if recipe is not None:
+        con.print(f"the stored {dim}-D calibration's recipe: {_recipe_text(spec)} (give "
+                  "--packing, --bond-*, --rolling-*, --friction/--no-friction or --packings "
+                  "to choose another)", highlight=False)
 
     def report(i, rec):
         m, e = rec["measured"], rec["rel_errors"]

@@ -344,3 +344,29 @@ def test_over_packings_keeps_a_missing_confined_peak():
 def test_packings_out_of_range_are_refused(n):
     with pytest.raises(ValueError, match="packings"):
         C.CalibrationSpec(targets=dict(TARGETS), packings=n)
+
+
+def test_calibrate_repeats_the_stored_recipe_unless_told_otherwise():
+    """``geodem calibrate NAME`` with no recipe option repeats the stored calibration's
+    micro-structure, friction test, packings and check disc (the library's turning 2-D
+    sandstone); any recipe option chooses afresh; a material without a record has none."""
+    from geodem.cli import _recipe_text, _stored_recipe
+    from geodem.materials_library import load_material
+
+    sand = load_material("sandstone")
+    sp = sand.calibrated["2d"]["specimen"]
+    structure, friction, packings, disc = _stored_recipe(sand, 2, *[None] * 8)
+    assert structure["rotation"] is True
+    assert structure["rolling_stiffness"] == sp["rolling_stiffness"]
+    assert friction is (sp.get("friction_test") is not None)
+    assert packings == sp["packings"]
+    assert disc == {"disc_diameter": sp["disc_diameter"], "disc_drop": sp["disc_drop"]}
+    spec = C.CalibrationSpec(targets=sand.values(), structure=structure, friction=friction,
+                             packings=packings, **disc)
+    assert "turning elements (bond moment 100" in _recipe_text(spec)
+    for k in range(8):  # any one option given: no stored recipe
+        options = [None] * 8
+        options[k] = 1.0
+        assert _stored_recipe(sand, 2, *options) is None
+    bare = sand.model_copy(update={"calibrated": None})
+    assert _stored_recipe(bare, 2, *[None] * 8) is None
