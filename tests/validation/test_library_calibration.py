@@ -1,9 +1,10 @@
 """The long calibrations (slow): `geodem calibrate` of library rocks on real specimens meets E,
-Cu, Tu within 5 % and nu within 0.03 in at most 8 iterations, and the stored calibration is
-what it finds again. The cheap slice in CI is tests/unit/test_calibrate.py (synthetic packings).
-Measured 2026-12-04 (commit 6d7aae0, docs/calibration.md, the elastic fit, Tu from direct
-tension): granite 2-D converged at iteration 3 in 54 s, marble 3-D at iteration 3 in 145 s, one
-core each."""
+Cu, Tu within 5 % and nu within 0.03 (and, with the 2-D recipe, phi within 2 deg) in at most 8
+iterations, and the stored calibration is what it finds again (`geodem calibrate NAME` repeats
+the stored recipe). The cheap slice in CI is tests/unit/test_calibrate.py (synthetic packings).
+Measured: granite 2-D (turning elements, friction angle, three packings; 2026-12-05) converged
+at iteration 4 in 1,354 s with its packings side by side on a busy 2-core machine; marble 3-D
+(translating; 2026-12-04, commit 6d7aae0) at iteration 3 in 145 s on one core."""
 import json
 
 import pytest
@@ -26,6 +27,8 @@ def test_a_library_rock_calibrates_to_its_lab_values(tmp_path, name, dim):
     for k in ("E", "Cu", "Tu"):
         assert abs(s["rel_errors"][k]) <= 0.05, (k, s["rel_errors"])
     assert abs(s["abs_errors"]["nu"]) <= 0.03
+    if "phi" in s["targets"]:  # the 2-D library recipe matches the friction angle too
+        assert abs(s["abs_errors"]["phi"]) <= 2.0
     # the same seed on any thread count gives the same packing: the stored record is found again
     stored = load_material(name).calibrated[f"{dim}d"]
     assert s["measured"] == pytest.approx(stored["measured"], rel=1e-9)
