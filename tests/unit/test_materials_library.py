@@ -35,7 +35,11 @@ def test_file_loads_with_sources(name):
         assert keys | {"packing"} <= set(block["element"]) <= keys | set(STRUCTURE_KEYS)
         # the recipe the calibration was made on, stored with it (every test builds it)
         assert block["element"]["packing"] == block["specimen"]["packing"] == "isotropic"
-        assert set(block["measured"]) == {"E", "nu", "Tu", "Cu"}
+        # a calibration with the friction test measured phi too (the 2-D library's)
+        friction = block["specimen"].get("friction_test") is not None
+        assert set(block["measured"]) == {"E", "nu", "Tu", "Cu"} | ({"phi"} if friction else set())
+        if friction:
+            assert abs(block["measured"]["phi"] - block["friction_test"]["target_phi"]) <= 2.0
     for k in PROPERTY_NAMES:
         s = getattr(m.properties, k).source
         assert s.author.strip() and s.title.strip() and s.what.strip()
@@ -147,6 +151,9 @@ def test_calibration_table_by_hand(tmp_path):
                           "crack_start_offset": 0.8},
                run={"date": "2026-12-04", "wall_time_s": 45.0, "threads": 1})
     rec["specimen"]["fit"] = "elastic"
+    for k in ("rotation", "bond_moment", "rolling_friction", "rolling_stiffness",
+              "disc_diameter"):  # a translating record without its disc
+        rec["specimen"].pop(k, None)
     done = _write(tmp_path, doc, "done.yaml")
     bare = copy.deepcopy(doc)
     bare["name"], bare["calibrated"] = "bare", None
