@@ -148,12 +148,16 @@ def test_tiny_cut_rolling_over_normal_force_follows_the_contact_geometry(tiny):
 
 def test_tiny_cut_strong_layers_need_more_force(tiny):
     """Layered rock: the normal force fitted on the soft fraction of the contact chord is
-    larger in sandstone (calibrated UCS 76 MPa, tensile 4.1 MPa) than in mudstone (20 MPa,
-    2.0 MPa); CSM scales as cbrt(sigma_c^2 sigma_t): a factor cbrt((75.8/20.3)^2 4.07/1.97)
-    = 3.07 with the calibration records of materials/*.yaml. Measured 2026-12-04 (commit
-    6d7aae0): 9,083 N against 7,122 N, 1.28x (1.84x with the window-fit library of commit
-    40b193e, whose shear springs were 6-14 % stiffer): at 209 elements the contrast is mostly
-    packing noise (docs/tbm_cutter.md), so the test asks for 1.2x, the sign with a margin."""
+    larger in sandstone (calibrated UCS 73.8 MPa, tensile 4.02 MPa) than in mudstone
+    (19.8 MPa, 2.01 MPa); CSM scales as cbrt(sigma_c^2 sigma_t): a factor
+    cbrt((73.8/19.8)^2 4.02/2.01) = 3.03 with the calibration records of materials/*.yaml
+    (turning elements, 2026-12-05; 3.07 with the translating records of commit 6d7aae0).
+    Measured with the translating library (2026-12-04, commit 6d7aae0): 9,083 N against
+    7,122 N, 1.28x (1.84x with the window-fit library of commit 40b193e, whose shear springs
+    were 6-14 % stiffer): at 209 elements the contrast is mostly packing noise
+    (docs/tbm_cutter.md), so the test asks for 1.2x, the sign with a margin. With the turning
+    library (commit 5d34a90) the model is refused at build: its mudstone and sandstone have
+    different rolling stiffnesses (3 and 2) and rotation is a property of the whole model."""
     from geodem.materials_library import load_material
 
     s, _ = tiny
@@ -193,17 +197,18 @@ def default_run(tmp_path_factory):
 @pytest.mark.slow
 def test_default_workflow(default_run):
     s = default_run
-    assert s["energy_closure_rel_error"] <= 0.01  # measured 2.0e-5
+    assert s["energy_closure_rel_error"] <= 0.01  # measured 4.0e-5 (library of 6d7aae0)
     phi = s["results"]["cut"]["contact_angle"]
-    assert math.tan(phi / 2) / 3 < s["rolling_coefficient"] < math.tan(phi) + 0.2  # 0.365
+    assert math.tan(phi / 2) / 3 < s["rolling_coefficient"] < math.tan(phi) + 0.2  # 0.37
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="the fitted layer contrast of the default block is "
-                                        "packing noise: 0.86-1.63x over seeds and thread "
-                                        "pools (CSM: 3.7x); the 2-D line load crushes the "
-                                        "block through its height (docs/tbm_cutter.md). The "
-                                        "tiny model's contrast is tested in the default suite")
+@pytest.mark.xfail(strict=False, raises=AssertionError,
+                   reason="the fitted layer contrast of the default block is "
+                          "packing noise: 0.86-1.63x over seeds and thread "
+                          "pools (CSM: 3.0-3.7x); the 2-D line load crushes the "
+                          "block through its height (docs/tbm_cutter.md). The "
+                          "tiny model's contrast is tested in the default suite")
 def test_default_workflow_layered_contrast(default_run):
     s = default_run
     assert s["normal_force_strong"] > 1.3 * s["normal_force_soft"] > 0
