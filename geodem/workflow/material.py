@@ -4,7 +4,7 @@ section (macro, micro, per-size and library materials), its problems, and the el
 a material asks for."""
 from __future__ import annotations
 
-
+import numpy as np
 
 from geodem.workflow.models import BuildError, BuiltModel
 from geodem.workflow.schema import MacroMaterial
@@ -104,13 +104,16 @@ def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> 
 def material_rotation(cfg, model) -> dict | None:
     """The rotation option of the materials ``model`` uses (``rotation``, ``rolling_friction``,
     ``bond_moment``, ``rolling_stiffness`` of their element parameters): None when none asks
-    for it, else ``{"rolling_friction": mu_r, "bond_moment": b, "rolling_stiffness": beta}``. Rotation is a property of the whole
-    model (the engine turns every element or none), so its materials must agree; a
-    ``BuildError`` names the first that differs."""
+    for it, else ``{"rolling_friction": mu_r, "bond_moment": b, "rolling_stiffness": beta}``,
+    and, where the turning materials differ in those values, ``"per_material"``: material
+    name -> ``(mu_r, b, beta, mu)`` with ``mu`` its element friction (how
+    :func:`apply_material_rotation` tells the elements apart). Rotation itself is a property
+    of the whole model (the engine turns every element or none), so turning and translating
+    materials cannot be mixed; a ``BuildError`` names the first that differs."""
     dim = getattr(model, "dim", None)
     if dim not in (2, 3):
         return None
-    seen = {}
+    seen, friction = {}, {}
     for _, name in model.material_refs():
         if name in seen or name not in cfg.materials:
             continue
@@ -122,29 +125,57 @@ def material_rotation(cfg, model) -> dict | None:
         seen[name] = ((float(el.get("rolling_friction") or 0.0),
                        float(el.get("bond_moment") or 0.0),
                        1.0 if beta is None else float(beta)) if el.get("rotation") else None)
+        friction[name] = el.get("mu")
     wanted = {v for v in seen.values()}
     if wanted <= {None}:
         return None
-    if len(wanted) > 1:
+    if None in wanted:
         first = next(n for n, v in seen.items() if v != next(iter(seen.values())))
 
         def said(v):
-            return ("rotation: false" if v is None
-                    else f"mu_r {v[0]:g}, bond_moment {v[1]:g}, rolling_stiffness {v[2]:g}")
+            return "rotation: false" if v is None else "rotation: true"
 
         listed = ", ".join(f"{n!r} ({said(v)})" for n, v in seen.items())
         raise BuildError(("materials", first), "rotation is a property of the whole model (every "
-                         f"element turns or none): the materials {listed} differ; allowed: the "
-                         "same rotation, rolling_friction, bond_moment and rolling_stiffness in "
-                         "every material of the model")
-    mu_r, mb, beta = wanted.pop()
-    return {"rolling_friction": mu_r, "bond_moment": mb, "rolling_stiffness": beta}
+                         f"element turns or none): the materials {listed} differ; allowed: "
+                         "turning elements in every material of the model, or in none")
+    mu_r, mb, beta = (max(v[k] for v in wanted) for k in range(3))
+    out = {"rolling_friction": mu_r, "bond_moment": mb, "rolling_stiffness": beta}
+    if len(wanted) > 1:
+        mus = [friction[n] for n in seen]
+        if None in mus or len(set(mus)) < len(mus):
+            raise BuildError(("materials",), "the model's turning materials differ in "
+                             "rolling_friction, bond_moment or rolling_stiffness, and their "
+                             "elements are told apart by their element friction mu, which "
+                             f"{'is unknown for one' if None in mus else 'two share'}; allowed: "
+                             "one set of those values, or a different mu for each material")
+        out["per_material"] = {n: seen[n] + (float(friction[n]),) for n in seen}
+    return out
+
+
+def rotation_arrays(rot: dict, mu) -> tuple:
+    """Per-element ``(mu_r, bond_moment, rolling_stiffness)`` for a model whose turning
+    materials differ (:func:`material_rotation`'s ``per_material``): an element whose friction
+    ``mu`` equals a material's takes that material's values; the others (walls, platens, a
+    cutter) take the largest of each, so that their contacts take the rock's (a contact
+    takes the smaller of its two elements' values). Scalars when the materials agree."""
+    if "per_material" not in rot:
+        return rot["rolling_friction"], rot["bond_moment"], rot["rolling_stiffness"]
+    mu = np.asarray(mu, dtype=np.float64)
+    out = [np.full(mu.shape, rot[k]) for k in ("rolling_friction", "bond_moment",
+                                                "rolling_stiffness")]
+    for mu_r, mb, beta, mu_m in rot["per_material"].values():
+        mine = mu == mu_m
+        for a, v in zip(out, (mu_r, mb, beta)):
+            a[mine] = v
+    return tuple(out)
 
 
 def apply_material_rotation(cfg, built: BuiltModel) -> None:
     """Switch on the materials' rotation (:func:`material_rotation`) for the built model:
     every element turns (walls and platens, being fixed or prescribed, do not), with the
-    materials' rolling friction and moment-resisting bonds; recorded in ``built.info``."""
+    materials' rolling friction, moment-resisting bonds and rolling stiffness (per element,
+    :func:`rotation_arrays`, where the materials differ); recorded in ``built.info``."""
     rot = material_rotation(cfg, cfg.model)
     if rot is None:
         return
@@ -154,9 +185,14 @@ def apply_material_rotation(cfg, built: BuiltModel) -> None:
         raise BuildError(("model",), "the model turns its elements already (its own rotation "
                                      "option) and its material asks for rotation too; allowed: "
                                      "one of the two")
-    enable_rotation(built.state, mu_r=rot["rolling_friction"], bond_moment=rot["bond_moment"],
-                    rolling_stiffness=rot["rolling_stiffness"])
-    built.info["rotation"] = rot
+    mu_r, mb, beta = rotation_arrays(rot, built.state.mu)
+    enable_rotation(built.state, mu_r=mu_r, bond_moment=mb, rolling_stiffness=beta)
+    built.info["rotation"] = {k: v for k, v in rot.items() if k != "per_material"}
+    if "per_material" in rot:
+        built.info["rotation"]["per_material"] = {
+            n: {"rolling_friction": v[0], "bond_moment": v[1], "rolling_stiffness": v[2],
+                "mu": v[3], "elements": int(np.sum(np.asarray(built.state.mu) == v[3]))}
+            for n, v in rot["per_material"].items()}
 
 
 # ============================================================================ specimen

@@ -67,16 +67,30 @@ def test_rolling_options_need_rotation(tmp_path, key):
 
 
 def test_materials_of_one_model_must_agree_on_rotation():
+    """Every material turns or none; turning materials may differ in their rolling options,
+    told apart per element by their element friction (rotation_arrays)."""
+    from geodem.workflow.material import rotation_arrays
+
     mats = {"a": ScaledMicroMaterial(**ROCK, rotation=True, bond_moment=0.5),
             "b": ScaledMicroMaterial(**ROCK)}
     cfg = types.SimpleNamespace(materials=mats)
     model = types.SimpleNamespace(dim=2, material_refs=lambda: [(("m",), "a"), (("n",), "b")])
-    with pytest.raises(BuildError, match="'a' \\(mu_r 0, bond_moment 0.5, rolling_stiffness "
-                                         "1\\), 'b' \\(rotation: false\\) differ"):
+    with pytest.raises(BuildError, match="'a' \\(rotation: true\\), 'b' \\(rotation: false\\) "
+                                         "differ"):
         material_rotation(cfg, model)
     mats["b"] = ScaledMicroMaterial(**ROCK, rotation=True, bond_moment=0.5)
     assert material_rotation(cfg, model) == {"rolling_friction": 0.0, "bond_moment": 0.5,
                                              "rolling_stiffness": 1.0}
+    # the same element friction: the elements cannot be told apart
     mats["b"] = ScaledMicroMaterial(**ROCK, rotation=True, bond_moment=0.5, rolling_stiffness=3)
-    with pytest.raises(BuildError, match="rolling_stiffness 3\\) differ"):
+    with pytest.raises(BuildError, match="two share"):
         material_rotation(cfg, model)
+    # another friction: per-element values; an element of neither (a wall) takes the largest
+    mats["b"] = ScaledMicroMaterial(**dict(ROCK, mu=0.123), rotation=True, bond_moment=2.0,
+                                    rolling_stiffness=3)
+    rot = material_rotation(cfg, model)
+    assert rot["rolling_stiffness"] == 3.0 and rot["bond_moment"] == 2.0
+    mu_a = float(mats["a"].mu)
+    mu_r, mb, beta = rotation_arrays(rot, [mu_a, 0.123, 0.9])
+    assert list(beta) == [1.0, 3.0, 3.0] and list(mb) == [0.5, 2.0, 2.0]
+    assert list(mu_r) == [0.0, 0.0, 0.0]

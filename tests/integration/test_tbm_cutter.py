@@ -146,28 +146,43 @@ def test_tiny_cut_rolling_over_normal_force_follows_the_contact_geometry(tiny):
     assert math.tan(phi / 2) / 3 < s["rolling_coefficient"] < math.tan(phi) + 0.2
 
 
-def test_tiny_cut_strong_layers_need_more_force(tiny):
-    """Layered rock: the normal force fitted on the soft fraction of the contact chord is
-    larger in sandstone (calibrated UCS 73.8 MPa, tensile 4.02 MPa) than in mudstone
-    (19.8 MPa, 2.01 MPa); CSM scales as cbrt(sigma_c^2 sigma_t): a factor
-    cbrt((73.8/19.8)^2 4.02/2.01) = 3.03 with the calibration records of materials/*.yaml
-    (turning elements, 2026-12-05; 3.07 with the translating records of commit 6d7aae0).
-    Measured with the translating library (2026-12-04, commit 6d7aae0): 9,083 N against
-    7,122 N, 1.28x (1.84x with the window-fit library of commit 40b193e, whose shear springs
-    were 6-14 % stiffer): at 209 elements the contrast is mostly packing noise
-    (docs/tbm_cutter.md), so the test asks for 1.2x, the sign with a margin. With the turning
-    library (commit 5d34a90) the model is refused at build: its mudstone and sandstone have
-    different rolling stiffnesses (3 and 2) and rotation is a property of the whole model."""
+def test_tiny_cut_fits_a_force_per_layer_and_csm_per_rock(tiny):
+    """Layered rock: the normal force is fitted on the soft fraction of the contact chord for
+    each rock, and CSM is evaluated per rock from the calibration records: CSM scales as
+    cbrt(sigma_c^2 sigma_t), a factor cbrt((73.8/19.8)^2 4.02/2.01) = 3.03 between the library
+    sandstone and mudstone (turning elements, 2026-12-05; 3.07 with the translating records of
+    commit 6d7aae0). The fitted contrast itself is not asserted on this 209-element model: over
+    seeds 0-5 it read 0.92, 0.83, 2.63, 1.08, 1.45 and 0.65 x with the turning library
+    (2026-12-05; per-element rolling stiffness, mudstone 3 and sandstone 2) and 1.28, 8.85,
+    0.78, 7.2 and 1.17 x with the translating one (seed 2 did not build): packing noise, not
+    the rocks (docs/tbm_cutter.md; the default model's contrast is the slow test's)."""
     from geodem.materials_library import load_material
 
     s, _ = tiny
-    assert s["normal_force_strong"] > 1.2 * s["normal_force_soft"] > 0
+    assert s["normal_force_strong"] > 0 and s["normal_force_soft"] > 0
     rec = {k: load_material(k).calibrated["2d"]["measured"] for k in ("sandstone", "mudstone")}
     ratio = ((rec["sandstone"]["Cu"] / rec["mudstone"]["Cu"]) ** 2
              * rec["sandstone"]["Tu"] / rec["mudstone"]["Tu"]) ** (1.0 / 3.0)
     assert 2.5 < ratio < 3.5  # the records as documented above
     csm = s["results"]["cut"]["csm"]
     assert csm["strong"]["F_n"] / csm["soft"]["F_n"] == pytest.approx(ratio, rel=0.02)
+
+
+def test_two_turning_rocks_keep_their_own_rolling_stiffness():
+    """The layered block mixes the turning mudstone (rolling stiffness 3) and sandstone (2):
+    each rock element keeps its rock's (told apart by the element friction), the cutter takes
+    the larger, so its contacts take the rock's."""
+    from geodem.core.groups import members
+    from geodem.materials_library import load_material
+    from geodem.workflow import prepare
+
+    st, info = (lambda b: (b.state, b.info))(prepare(TBM, sets=TINY, backend="numba").built)
+    beta = st.rot_props[:, 1]
+    for name, group in (("mudstone", "soft"), ("sandstone", "strong")):
+        want = load_material(name).calibrated["2d"]["element"]["rolling_stiffness"]
+        assert info["rotation"]["per_material"][group]["rolling_stiffness"] == want
+        assert np.all(beta[members(st, group)] == want)
+    assert set(np.unique(beta)) == {2.0, 3.0}
 
 
 # ------------------------------------------------------------------ bad input
