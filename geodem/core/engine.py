@@ -513,10 +513,17 @@ class Simulation:
         ``dt = 0``, so no velocity, spring or heat changes, and the next velocity-Verlet step
         starts from ``a = F(x) / m`` of the model as it now is (after a cut, new radii, ...).
         A bond already beyond its strength breaks now, at the current step. ``push``: host
-        changes to send to the backend first."""
+        changes to send to the backend first. Turning elements: the step's rotation increment
+        ``dth`` is zeroed too (it loads the rolling springs like ``dx`` the shear springs;
+        left, a refresh applied the last step's rotation again, and a heated plate of turning
+        elements, refreshed as its radii grow, gained energy until it stopped at step 1000)."""
         s = self.state
         s.dx.fill(0.0)
-        self.backend.push(("dx",) + tuple(push))
+        names = ("dx",)
+        if s.rotation:
+            s.dth.fill(0.0)
+            names += ("dth",)
+        self.backend.push(names + tuple(push))
         self.backend.force(0.0, broken_code(s.step, 1), broken_code(s.step, 2))
 
     def crack_log(self) -> np.ndarray:

@@ -100,3 +100,26 @@ def test_crack_times_follow_the_time_step_of_each_stage():
     assert len(t) > 0 and len(s1.crack_log()) == 0
     # (step * dt, the old time, put them between 50 dt and 250 dt: before the stage began)
     assert t.min() > t1 and t.max() <= st.time + 1e-15
+
+
+def test_a_force_refresh_of_turning_elements_adds_no_rotation():
+    """``refresh_forces`` evaluates the forces at the current state: for turning elements the
+    last step's rotation increment must not load the rolling springs again (it did, and a
+    heated plate of turning elements, refreshed at every expansion, gained energy)."""
+    from geodem.core.state import enable_rotation
+
+    st = block()
+    enable_rotation(st, bond_moment=100.0, rolling_stiffness=2.0)
+    groups.fix(st, "base")
+    groups.set_velocity(st, "top", [1e-3, 0.0])  # shear the block: the elements turn
+    sim = Simulation(st, backend="numba")
+    sim.run(200)
+    sim.sync()
+    assert np.abs(st.dth).max() > 0.0 and np.abs(st.mr).max() > 0.0
+    mr, a = st.mr.copy(), st.a.copy()
+    sim.refresh_forces()
+    sim.refresh_forces()
+    sim.sync()
+    assert np.all(st.dth == 0.0)
+    np.testing.assert_array_equal(st.mr, mr)
+    np.testing.assert_allclose(st.a, a, rtol=1e-12, atol=1e-12 * np.abs(a).max())
