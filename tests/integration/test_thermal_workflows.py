@@ -119,7 +119,10 @@ def test_heated_borehole_cracks(tmp_path):
     res = s["results"]["heat"]
     assert res["probes"]["heater"] == pytest.approx(473.15, rel=1e-12)
     assert 293.15 < res["probes"]["edge"] < res["probes"]["specimen"] < 473.15
-    assert 10 <= s["broken_bonds"] <= 40  # measured 17 (translating library of 6d7aae0)
+    # measured 6 with the turning library sandstone (2026-12-05; 17 with the translating one
+    # of 6d7aae0): a turning rock splits in a few clean radial cracks (the default plate: 21
+    # bonds against 35, docs/thermal.md)
+    assert 3 <= s["broken_bonds"] <= 40
     assert res["cracks_tensile"] == s["broken_bonds"] and res["cracks_shear"] == 0
     assert s["energy_closure_rel_error"] < 1e-3  # measured 3.3e-5
     # radial cracks: a broken bond runs round the hole (hoop tension), |cos| of its angle with
