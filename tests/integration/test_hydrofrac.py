@@ -6,17 +6,20 @@ elements, the fast 2e9 Pa/s ramp) run end to end (summary keys, mass balance, pi
 8 d_mean radius; ramp 5e8 Pa/s) against the targets of VALIDATION.md (measured values:
 docs/hydraulic_fracturing.md):
 
-* isotropic (four fixed boundaries), seeds 0-2: 3-5 crack arms spread round the hole (no
-  preferred direction; measured 5, 5, 4; MatDEM shows 3); breakdown within 30 % of
-  Hubbert-Willis ``P_b = T`` with T the calibrated Tu of materials/sandstone.yaml (4.07 MPa):
-  measured 5.14, 4.39, 4.30 MPa (1.26, 1.08, 1.06 x), the mean of the three seeds is
+Measured 2026-12-05 (commit d2faca0) on the library sandstone of commit 0010be8 (turning
+elements: moment-resisting bonds, rolling stiffness 2; calibrated Tu 4.02 MPa):
+
+* isotropic (four fixed boundaries), seeds 0-2: 3-5 crack arms round the hole, not all on one
+  side (no preferred direction; measured 3, 3, 4; MatDEM shows 3); breakdown within 30 % of
+  Hubbert-Willis ``P_b = T`` with T the calibrated Tu of materials/sandstone.yaml:
+  measured 5.15, 3.90, 3.90 MPa (1.28, 0.97, 0.97 x), the mean of the three seeds is
   asserted; with T from direct tension of a strip of the plate's own packing
-  (``tensile_strength_from: direct_tension``) within 30 % too;
-* confined (sigma_H = 6 MPa along x, sigma_h = 3 MPa): the dominant arm within 15 deg of
-  sigma_H (measured 8.7 deg); breakdown within 30 % of ``3 sigma_h - sigma_H + T`` = 7.07 MPa:
-  NOT met at the default 8 d_mean hole, measured 10.47 MPa (1.48 x), a strict xfail; met at
-  a 16 d_mean hole (1.27 x, its own slow test);
-* fluid mass balance < 1e-6 in all (measured ~1e-16).
+  (``tensile_strength_from: direct_tension``, 4.15 MPa) within 30 % too (1.24 x);
+* confined (sigma_H = 6 MPa along x, sigma_h = 3 MPa), seeds 0-2: the dominant arm of seed 0
+  within 15 deg of sigma_H (measured 5.7 deg); breakdown within 30 % of ``3 sigma_h - sigma_H
+  + T`` = 7.02 MPa on the mean of the three seeds: measured 8.24, 9.83, 8.72 MPa (1.17, 1.40,
+  1.24 x, mean 1.27 x); at a 16 d_mean hole 0.97 x (its own slow test);
+* fluid mass balance < 1e-6 in all (measured 1.5e-14 or less).
 """
 import json
 import math
@@ -130,7 +133,7 @@ def test_boundary_tractions_carry_the_far_field_stress(angle):
 # ------------------------------------------------------------------ a small plate end to end
 # the small plate keeps the fast ramp that was the default before commit 65a0cde (2e9 Pa/s), to
 # 20 MPa: a few seconds in CI. Its cracks grow stably between its close fixed edges (first crack
-# 7.5 MPa, 15 cracks at the stop radius by 11.2 MPa), so a burst is 5 bonds within 1 MPa here
+# 7.7 MPa, 15 cracks at the stop radius by 12.7 MPa), so a burst is 5 bonds within 1 MPa here
 SMALL = ["model.coarsen=null", "model.size=0.1", "model.hole_radius=0.0075",
          "steps.injection.duration=0.01",
          "steps.injection.pressure_rate=2.0e9", "steps.injection.burst_window=1.0e6"]
@@ -163,7 +166,7 @@ def test_small_plate_fractures_with_closed_books(small):
     assert s["hubbert_willis_pressure"] == s["tensile_strength"]  # sigma = 0, p0 = 0
     # the burst: a pressure the ramp reached, after the first crack
     assert 0 < r["first_crack_pressure"] <= s["breakdown_pressure"] <= r["final_injection_pressure"]
-    assert 2 <= s["crack_branches"] <= 4  # measured: 2 arms (21, 232 deg)
+    assert 2 <= s["crack_branches"] <= 4  # measured 2026-12-05: 2 arms (21, 237 deg)
     assert len(s["crack_angles_deg"]) == s["crack_branches"]
     assert r["injected_mass"] > 0 and s["cracks_tensile"] > 10
     for name in ("hf_pressure.png", "hf_history.png", "hf_animation.gif", "hydrofrac_curve.csv"):
@@ -229,23 +232,30 @@ def test_largest_gap_between_arms():
 @pytest.mark.slow
 @pytest.mark.validation
 def test_isotropic_plate_grows_arms_in_no_preferred_direction(isotropic_seeds):
-    """Three packings (seeds 0-2). Measured 2026-12-04 on the graded plate (8 d_mean hole,
-    ramp 5e8 Pa/s, one thread): 5, 5, 4 arms, the largest gap between neighbouring arms 89,
-    84, 115 deg. (The 2 d_mean hole of the 0.2 m plate grew 3, 2, 4 arms; a hole of more
-    elements has more places to start one; MatDEM's picture shows 3.)"""
+    """Three packings (seeds 0-2). Measured 2026-12-05 (commit d2faca0) on the graded plate
+    (8 d_mean hole, ramp 5e8 Pa/s, one thread): 3, 3, 4 arms (144, 302, 356 / 150, 231, 338 /
+    58, 125, 204, 282 deg), the largest gap between neighbouring arms 158, 172, 136 deg. The
+    bound on that gap was 150 deg while the library sandstone's elements translated (5, 5, 4
+    arms, gaps 89-115 deg, commit 6d7aae0); the turning elements grow fewer arms: the same
+    element parameters with ``rotation: false`` grow 5 arms on seeds 0 and 1 (largest gaps 115
+    and 102 deg), and three arms at random angles leave wider gaps. The bound is now that no
+    half of the plate is free of arms (< 180 deg): arms on both sides of the hole, no
+    preferred direction. (The 2 d_mean hole of the 0.2 m plate grows 3, 2, 2 arms; MatDEM's
+    picture shows 3.)"""
     for seed, s in enumerate(isotropic_seeds):
         assert 3 <= s["crack_branches"] <= 5, (seed, s["crack_angles_deg"])
-        assert _largest_gap_deg(s["crack_angles_deg"]) < 150.0, (seed, s["crack_angles_deg"])
+        assert _largest_gap_deg(s["crack_angles_deg"]) < 180.0, (seed, s["crack_angles_deg"])
         assert s["fluid_mass_balance_rel_error"] < 1e-6
 
 
 @pytest.mark.slow
 @pytest.mark.validation
 def test_isotropic_breakdown_within_30_percent_of_hubbert_willis(isotropic_seeds):
-    """T = the calibrated Tu (direct tension of the 0.1 x 0.2 m calibration specimen, 4.07
-    MPa). Measured: 5.14, 4.39, 4.30 MPa (1.26, 1.08, 1.06 x; mean 1.13 x). The 2 d_mean hole
-    of the 0.2 m plate broke at 5.84, 7.39, 8.65 MPa (1.44-2.12 x): a hole of two elements puts
-    the whole stress concentration into one element layer (docs/hydraulic_fracturing.md)."""
+    """T = the calibrated Tu (direct tension of the 0.1 x 0.2 m calibration specimen, 4.02
+    MPa). Measured 2026-12-05: 5.15, 3.90, 3.90 MPa (1.28, 0.97, 0.97 x; mean 1.07 x). The
+    2 d_mean hole of the 0.2 m plate broke at 6.25, 7.50, 7.89 MPa (1.55-1.96 x): a hole of two
+    elements puts the whole stress concentration into one element layer
+    (docs/hydraulic_fracturing.md)."""
     ratios = [s["breakdown_pressure"] / s["hubbert_willis_pressure"] for s in isotropic_seeds]
     assert all(s["hubbert_willis_pressure"] == s["tensile_strength"] for s in isotropic_seeds)
     assert np.mean(ratios) == pytest.approx(1.0, abs=0.30), ratios
@@ -272,8 +282,8 @@ def test_direct_tension_strength_of_the_plate_packing(isotropic_direct):
     res = sub["results"]["tension"]
     assert res["area"] == pytest.approx(10 * 0.005 * 0.005, rel=1e-4)
     assert s["tensile_strength"] == pytest.approx(res["peak_force"] / res["area"], rel=1e-12)
-    # measured 4.31 MPa on the isotropic packing of the 2-D sandstone (its calibrated Tu, direct
-    # tension of the twice larger calibration specimen: 4.07); strips scatter ~12 % (docs)
+    # measured 4.15 MPa on the isotropic packing of the 2-D sandstone (its calibrated Tu, direct
+    # tension of the twice larger calibration specimen: 4.02); strips scatter ~12 % (docs)
     assert 3.5e6 < s["tensile_strength"] < 5.0e6
     assert "direct tension" in r["tensile_strength_source"]
     assert s["hubbert_willis_pressure"] == s["tensile_strength"]  # sigma = 0, p0 = 0
@@ -286,7 +296,7 @@ def test_direct_tension_strength_of_the_plate_packing(isotropic_direct):
 @pytest.mark.validation
 def test_isotropic_breakdown_within_30_percent_of_direct_tension_hubbert_willis(
         isotropic_direct):
-    # measured 5.14 MPa against T = 4.31 MPa: 1.19 x
+    # measured 5.15 MPa against T = 4.15 MPa: 1.24 x
     s, _ = isotropic_direct
     assert s["breakdown_pressure"] == pytest.approx(s["hubbert_willis_pressure"], rel=0.30)
 
@@ -294,7 +304,8 @@ def test_isotropic_breakdown_within_30_percent_of_direct_tension_hubbert_willis(
 @pytest.mark.slow
 @pytest.mark.validation
 def test_confined_fracture_follows_sigma_H(confined):
-    # measured: dominant arm at 171.3 deg (8.7 deg from sigma_H), 2 branches (seed 1: 21.9 deg)
+    # measured: dominant arm at 174.3 deg (5.7 deg from sigma_H), 2 branches (seeds 1, 2: 16.1,
+    # 13.1 deg; docs/hydraulic_fracturing.md)
     assert confined["sigma_H_angle_deg"] == 0.0
     assert axis_misfit_deg(confined["dominant_crack_angle_deg"],
                            confined["sigma_H_angle_deg"]) < 15.0
@@ -304,21 +315,41 @@ def test_confined_fracture_follows_sigma_H(confined):
     assert json.loads(json.dumps(confined))["crack_branches"] >= 1
 
 
+@pytest.fixture(scope="module")
+def confined_seeds(confined, tmp_path_factory):
+    runs = [confined]
+    for seed in (1, 2):
+        out = tmp_path_factory.mktemp(f"hfc_seed{seed}") / "run"
+        code, s = run_workflow(HFC, out, sets=[f"model.seed={seed}", "steps.injection.gif=false"],
+                               echo=False, progress=False)
+        assert code == 0 and s["status"] == "ok", s.get("error")
+        runs.append(s)
+    return runs
+
+
 @pytest.mark.slow
 @pytest.mark.validation
-@pytest.mark.xfail(strict=True, reason="measured breakdown 10.47 MPa against 3 sigma_h - "
-                                       "sigma_H + T = 7.07 MPa (T = 4.07 MPa, the calibrated "
-                                       "Tu): 1.48 x; the isotropic plate breaks at 1.26 T, so "
-                                       "the confinement adds 5.3 MPa where Kirsch's hoop "
-                                       "stress at the wall gives 3: the confinement's hoop "
-                                       "stress falls off slower than the pressure's one "
-                                       "element into the rock, see docs/hydraulic_fracturing.md")
-def test_confined_breakdown_within_30_percent_of_hubbert_willis(confined):
-    assert confined["breakdown_pressure"] == pytest.approx(
-        confined["hubbert_willis_pressure"], rel=0.30)
+def test_confined_breakdown_within_30_percent_of_hubbert_willis(confined_seeds):
+    """Three packings (seeds 0-2), T = the calibrated Tu (4.02 MPa): ``3 sigma_h - sigma_H + T``
+    = 7.02 MPa. Measured 2026-12-05 (commit d2faca0, turning library sandstone of 0010be8):
+    8.24, 9.83, 8.72 MPa (1.17, 1.40, 1.24 x; mean 1.27 x). The translating library of commit
+    6d7aae0 broke seed 0 at 10.47 MPa (1.48 x; this test was then a strict xfail on seed 0
+    alone); the turning library's element parameters without rotation break seeds 0 and 1 at
+    10.63 MPa (1.51 x): the turning elements lower the confined breakdown. The
+    confinement adds 3.09, 5.94, 4.82 MPa to the isotropic breakdown of the same packings
+    (mean 4.61 MPa, against 4.74 MPa for Kirsch's hoop stress one element into the rock and
+    3 MPa at the wall; docs/hydraulic_fracturing.md, "Why the confined case is high"), and the
+    isotropic breakdown is 1.07 T on the mean: together 1.27 x, so the mean is asserted, as for
+    the isotropic plate; no packing beyond 1.5 x (seed 1: 1.40 x)."""
+    ratios = [s["breakdown_pressure"] / s["hubbert_willis_pressure"] for s in confined_seeds]
+    assert all(s["hubbert_willis_pressure"] == pytest.approx(3 * 3e6 - 6e6 + s["tensile_strength"],
+                                                             rel=1e-12) for s in confined_seeds)
+    assert np.mean(ratios) == pytest.approx(1.0, abs=0.30), ratios
+    assert max(ratios) < 1.5, ratios
+    assert all(s["fluid_mass_balance_rel_error"] < 1e-6 for s in confined_seeds)
 
 
-# the borehole of 16 d_mean (a 1.6 m graded plate, 7,903 elements, ~8 min on one core)
+# the borehole of 16 d_mean (a 1.6 m graded plate, 7,903 elements, ~7 min on one core)
 HOLE_16 = ["model.hole_radius=0.08", "model.size=1.6", "model.coarsen.band=0.04",
            "model.coarsen.transition=0.04", "steps.injection.gif=false"]
 
@@ -327,10 +358,10 @@ HOLE_16 = ["model.hole_radius=0.08", "model.size=1.6", "model.coarsen.band=0.04"
 @pytest.mark.validation
 def test_confined_breakdown_within_30_percent_of_hubbert_willis_at_a_16_d_mean_hole(tmp_path):
     """The confined case with the borehole resolved twice as finely as the workflow's default
-    (docs/hydraulic_fracturing.md, "Why the confined case is high"): measured 2026-12-04
-    (commit 6d7aae0, seed 0) 8.96 MPa against 3 sigma_h - sigma_H + T = 7.07 MPa, 1.27 x (the
-    8 d_mean default: 1.48 x, the strict xfail above); 4 arms, the dominant 16.7 deg from
-    sigma_H."""
+    (docs/hydraulic_fracturing.md, "Why the confined case is high"): measured 2026-12-05
+    (commit d2faca0, seed 0) 6.79 MPa against 3 sigma_h - sigma_H + T = 7.02 MPa, 0.97 x (the
+    8 d_mean default: 1.17 x on seed 0, 1.27 x on the mean of three seeds); 2 arms, the
+    dominant 13.1 deg from sigma_H. (Translating library, commit 6d7aae0: 8.96 MPa, 1.27 x.)"""
     code, s = run_workflow(HFC, tmp_path / "run", sets=HOLE_16, echo=False, progress=False)
     assert code == 0 and s["status"] == "ok", s.get("error")
     assert s["n_elements"] > 7000
