@@ -193,16 +193,22 @@ def confined(tmp_path_factory):
     return s
 
 
-@pytest.fixture(scope="module")
-def isotropic_seeds(isotropic, tmp_path_factory):
-    runs = [isotropic]
+def _seeds_1_and_2(workflow, first, tmp_path_factory, tag):
+    """``first`` (seed 0's summary) and the summaries of ``workflow`` on seeds 1 and 2."""
+    runs = [first]
     for seed in (1, 2):
-        out = tmp_path_factory.mktemp(f"hf_seed{seed}") / "run"
-        code, s = run_workflow(HF, out, sets=[f"model.seed={seed}", "steps.injection.gif=false"],
+        out = tmp_path_factory.mktemp(f"{tag}_seed{seed}") / "run"
+        code, s = run_workflow(workflow, out, sets=[f"model.seed={seed}",
+                                                    "steps.injection.gif=false"],
                                echo=False, progress=False)
         assert code == 0 and s["status"] == "ok", s.get("error")
         runs.append(s)
     return runs
+
+
+@pytest.fixture(scope="module")
+def isotropic_seeds(isotropic, tmp_path_factory):
+    return _seeds_1_and_2(HF, isotropic, tmp_path_factory, "hf")
 
 
 def test_maps_show_the_cracks_with_a_margin_and_never_more_than_the_plate():
@@ -317,14 +323,7 @@ def test_confined_fracture_follows_sigma_H(confined):
 
 @pytest.fixture(scope="module")
 def confined_seeds(confined, tmp_path_factory):
-    runs = [confined]
-    for seed in (1, 2):
-        out = tmp_path_factory.mktemp(f"hfc_seed{seed}") / "run"
-        code, s = run_workflow(HFC, out, sets=[f"model.seed={seed}", "steps.injection.gif=false"],
-                               echo=False, progress=False)
-        assert code == 0 and s["status"] == "ok", s.get("error")
-        runs.append(s)
-    return runs
+    return _seeds_1_and_2(HFC, confined, tmp_path_factory, "hfc")
 
 
 @pytest.mark.slow
