@@ -997,14 +997,7 @@ def calibration_block(summary: dict) -> dict:
             summary["wall_time_s"]), 1), "threads": summary.get("threads")}
     b = summary.get("brazilian")
     if b:
-        block["brazilian"] = {"tensile_strength": float(b["tensile_strength"]),
-                              "over_target": round(float(b["over_target"]), 4),
-                              "crack_start_offset": (None if b["crack_start_offset"] is None
-                                                     else round(float(b["crack_start_offset"]),
-                                                                3))}
-        if b.get("per_packing"):  # several packings: each one's, over Tu
-            block["brazilian"]["per_packing"] = [round(float(r["over_target"]), 4)
-                                                 for r in b["per_packing"]]
+        block["brazilian"] = _brazilian_block(b)
     f = summary.get("friction_test")
     if f:
         block["friction_test"] = {"phi": (None if not math.isfinite(f["phi"])
@@ -1013,6 +1006,19 @@ def calibration_block(summary: dict) -> dict:
                                   "sigma3": float(f["sigma3"]), "peak_0": float(f["peak_0"]),
                                   "peak_c": None if f["peak_c"] is None else float(f["peak_c"])}
     return {f"{summary['dim']}d": block}
+
+
+def _brazilian_block(b: dict) -> dict:
+    """A Brazilian check (:func:`brazilian_check`, or :func:`over_packings` of it) as the
+    material file stores it: strength, ratio to Tu, crack start and, for several packings,
+    each one's ratio."""
+    off = b.get("crack_start_offset")
+    out = {"tensile_strength": float(b["tensile_strength"]),
+           "over_target": round(float(b["over_target"]), 4),
+           "crack_start_offset": None if off is None else round(float(off), 3)}
+    if b.get("per_packing"):
+        out["per_packing"] = [round(float(r["over_target"]), 4) for r in b["per_packing"]]
+    return out
 
 
 def save_calibration(path, summary: dict) -> None:
@@ -1028,15 +1034,12 @@ def save_brazilian_check(path, dim: int, checks: list, disc_diameter: float,
     file ``path`` by ``checks`` (:func:`brazilian_check` on one or more packings of the stored
     element parameters: their mean) on a disc of ``disc_diameter`` [m] stopped at
     ``disc_drop``; the record's specimen takes the disc. Returns the new check."""
-    tensile = [float(c["tensile_strength"]) for c in checks]
-    over = [float(c["over_target"]) for c in checks]
-    offsets = [float(c["crack_start_offset"]) for c in checks
-               if c.get("crack_start_offset") is not None]
-    check = {"tensile_strength": float(np.mean(tensile)),
-             "over_target": round(float(np.mean(over)), 4),
-             "crack_start_offset": round(float(np.mean(offsets)), 3) if offsets else None}
-    if len(checks) > 1:
-        check["per_packing"] = [round(v, 4) for v in over]
+    offsets = [c["crack_start_offset"] for c in checks if c.get("crack_start_offset") is not None]
+    check = _brazilian_block({
+        "tensile_strength": np.mean([c["tensile_strength"] for c in checks]),
+        "over_target": np.mean([c["over_target"] for c in checks]),
+        "crack_start_offset": float(np.mean(offsets)) if offsets else None,
+        "per_packing": checks if len(checks) > 1 else None})
 
     def update(old):
         rec = old[f"{dim}d"]
