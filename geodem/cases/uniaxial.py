@@ -108,7 +108,7 @@ class Specimen(ModelBase):
         from geodem.build.specimen import make_specimen
         from geodem.core import groups as grp
 
-        sm = specimen_material(cfg, self.material, self.dim)
+        sm = specimen_material(cfg, self.material, self.dim, self.d_mean)
         seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
         try:
             st, rep = make_specimen(self.shape, self.size, self.d_mean, self.distri_rate,

@@ -79,7 +79,8 @@ def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> 
         cal = (lib.calibrated or {}).get(f"{dim}d") if m.use != "lattice" else None
         if cal is not None:
             return SpecimenMaterial(lib.values()["rho"], element=dict(cal["element"]),
-                                    label=f"{lib.name}: calibrated ({dim}-D)")
+                                    label=f"{lib.name}: calibrated ({dim}-D)",
+                                    warnings=resolution_warnings(lib.name, cal, d_mean, dim))
         if m.use != "lattice":
             # no silent fallback: the lattice conversion is another rock (a 3-D sandstone on it
             # gave E 1.6 GPa for 15, nu 1.1), so it is taken only when asked for
@@ -99,6 +100,29 @@ def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> 
                                 warnings=warns)
     raise ValueError(f"material {name!r} must give rock properties (E, nu, Tu, Cu, mu_i, rho), "
                      "per-size element parameters or {library: NAME}")
+
+
+#: element sizes within this ratio of the calibration's count as its resolution
+SAME_RESOLUTION = 0.1
+
+
+def resolution_warnings(name: str, cal: dict, d_mean: float | None, dim: int) -> list:
+    """A warning when turning elements (``rotation`` in the calibrated ``element``) serve at
+    an element size more than :data:`SAME_RESOLUTION` away from the calibration's: their
+    rolling springs make the strength depend on the resolution (the library sandstone's UCS
+    measured 22 % lower at 2x finer elements while E moved 2 %, docs/calibration.md
+    "Resolution transfer"), so the calibrated numbers hold at the calibration's size only."""
+    cal_d = (cal.get("specimen") or {}).get("d_mean")
+    if d_mean is None or not cal_d or not (cal.get("element") or {}).get("rotation"):
+        return []
+    if abs(float(d_mean) / float(cal_d) - 1.0) <= SAME_RESOLUTION:
+        return []
+    return [f"{name}: calibrated with turning elements at d_mean = {float(cal_d):g} m, used at "
+            f"{float(d_mean):g} m: the strengths of turning elements depend on the resolution "
+            f"(UCS 22 % lower at 2x finer elements for the library sandstone; "
+            f"docs/calibration.md 'Resolution transfer'); for calibrated strengths calibrate at "
+            f"this size: geodem calibrate {name} --dim {dim} --d-mean {float(d_mean):g} "
+            f"-o DIR"]
 
 
 def material_rotation(cfg, model) -> dict | None:

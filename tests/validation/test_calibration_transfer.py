@@ -1,13 +1,14 @@
 """Calibrated parameters transfer across resolutions (docs/calibration.md).
 
 The library's sandstone carries a 2-D calibration made on the UCS specimen at d_mean = 5 mm
-(20 elements across the width). Its per-size parameters (kn, ks, xb ∝ d, fs0 ∝ d^2) must give
-the same E and UCS, within 10 %, on a specimen with 2x finer elements (d_mean = 2.5 mm, about
-3,300 elements), and reproduce the calibration at its own resolution.
+(20 elements across the width), its numbers the mean of ``packings`` packings (seeds 0, 1, ...).
+Its per-size parameters (kn, ks, xb ∝ d, fs0 ∝ d^2) must reproduce the calibration at its own
+resolution, and give the same E and UCS, within 10 %, on specimens with 2x finer elements
+(d_mean = 2.5 mm, about 3,300 elements), on the mean of as many packings.
 """
-import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from geodem.materials_library import load_material
@@ -19,11 +20,18 @@ ROOT = Path(__file__).resolve().parents[2]
 UCS = ROOT / "workflows" / "ucs.yaml"
 
 
-def ucs(tmp_path, d_mean):
-    sets = ["materials.rock={library: sandstone, use: calibrated}", f"model.d_mean={d_mean}"]
-    code, s = run_workflow(UCS, tmp_path / f"d{d_mean}", sets=sets, echo=False, progress=False)
-    assert code == 0, s.get("error")
-    return s
+def ucs_mean(tmp_path, d_mean, packings):
+    """E and UCS of workflows/ucs.yaml with the calibrated sandstone at ``d_mean``: the mean
+    over seeds 0 .. packings - 1, as the calibration measures them."""
+    runs = []
+    for seed in range(packings):
+        sets = ["materials.rock={library: sandstone, use: calibrated}",
+                f"model.d_mean={d_mean}", f"metadata.seed={seed}"]
+        code, s = run_workflow(UCS, tmp_path / f"d{d_mean}_s{seed}", sets=sets, echo=False,
+                               progress=False)
+        assert code == 0, s.get("error")
+        runs.append(s)
+    return {k: float(np.mean([s[k] for s in runs])) for k in ("E", "ucs", "n_elements")}
 
 
 @pytest.fixture(scope="module")
@@ -37,26 +45,36 @@ def sandstone():
 
 def test_calibration_reproduces_at_its_resolution(sandstone, tmp_path):
     cal = sandstone.calibrated["2d"]
-    s = ucs(tmp_path, cal["specimen"]["d_mean"])
-    # the same specimen, seed and parameters as the calibration's best iteration. Not bit for
-    # bit: the record was measured before the engine's adaptive neighbour checks,
-    # whose other rebuild steps change the round-off (E then moved by 1.5e-5 relative)
-    assert s["E"] == pytest.approx(cal["measured"]["E"], rel=1e-4)
-    assert s["ucs"] == pytest.approx(cal["measured"]["Cu"], rel=1e-4)
+    spec = cal["specimen"]
+    assert spec["seed"] == 0
+    s = ucs_mean(tmp_path, spec["d_mean"], int(spec.get("packings") or 1))
+    # the same specimens, seeds and parameters as the calibration's best iteration
+    assert s["E"] == pytest.approx(cal["measured"]["E"], rel=1e-6)
+    assert s["ucs"] == pytest.approx(cal["measured"]["Cu"], rel=1e-6)
 
 
-@pytest.mark.slow  # about 1.5 min on 1 core (3,348 elements)
-def test_twice_finer_elements_give_the_same_E_and_UCS(sandstone, tmp_path):
-    """Measured 2026-12-04 (commit 6d7aae0, the library on the elastic fit): d_mean 2.5 mm gives
-    E 14.39 GPa (-3.9 %) and UCS 73.4 MPa (-3.1 %) against the calibration's 14.97 GPa and 75.8
-    MPa at 5 mm (the window-fit library of commit 5a24c31: -3.9 % and -10.2 %, a strict xfail).
-    One packing per resolution: the UCS of one packing scatters by ~9 % between seeds at 5 mm
-    (docs/performance.md)."""
-def test_twice_finer_elements_give_the_same_E_and_UCS(sandstone, tmp_path):
-    cal = sandstone.calibrated["2d"]
-    d = cal["specimen"]["d_mean"]
-    fine = ucs(tmp_path, d / 2)
-    assert fine["n_elements"] > 3.5 * 830
-    E_t, Cu_t = cal["measured"]["E"], cal["measured"]["Cu"]
-    assert fine["E"] == pytest.approx(E_t, rel=0.10)
-    assert fine["ucs"] == pytest.approx(Cu_t, rel=0.10)
+@pytest.fixture(scope="module")
+def finer(sandstone, tmp_path_factory):
+    spec = sandstone.calibrated["2d"]["specimen"]
+    return ucs_mean(tmp_path_factory.mktemp("finer"), spec["d_mean"] / 2,
+                    int(spec.get("packings") or 1))
+
+
+@pytest.mark.slow  # about 7 min on 1 core (three packings of 3,348 elements)
+def test_twice_finer_elements_give_the_same_E(sandstone, finer):
+    """Measured 2026-12-05 (the turning-element library of commit 0010be8, seeds 0-2, one
+    core each): E 14.62 / 14.55 / 14.76 GPa (mean 14.64, -2.1 %) at d_mean 2.5 mm against the
+    calibration's mean 14.95 GPa at 5 mm."""
+    assert finer["n_elements"] > 3.5 * 830
+    assert finer["E"] == pytest.approx(sandstone.calibrated["2d"]["measured"]["E"], rel=0.10)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=(
+    "turning elements (rolling springs beta Ks R*^2) do not carry their UCS to 2x finer "
+    "elements: 57.8 / 60.5 / 53.9 MPa (seeds 0-2, mean -22 %) against the calibration's "
+    "73.8 MPa at 5 mm, while E transfers within 3 %; translating elements transferred within 4 % (commit "
+    "6d7aae0). Calibrate at the resolution of the run (docs/calibration.md 'Resolution "
+    "transfer')"))
+def test_twice_finer_elements_give_the_same_UCS(sandstone, finer):
+    assert finer["ucs"] == pytest.approx(sandstone.calibrated["2d"]["measured"]["Cu"], rel=0.10)
