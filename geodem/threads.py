@@ -76,3 +76,67 @@ def slow_layer_note(name: str) -> str | None:
             f"available or another layer was asked for); geodem measured its UCS workflow 10x "
             f"slower on 'workqueue' and its step 7x slower on Debian's TBB 2021.8 than on 'omp' "
             f"(docs/performance.md, \"Threading layer\")")
+
+
+# ============================================================================ BLAS threads
+#: (getter, setter) symbol names of the BLAS libraries numpy and scipy load: OpenBLAS as
+#: PyPI's numpy / scipy wheels bundle it, a system OpenBLAS, Intel MKL
+_BLAS_SYMBOLS = (("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"),
+                 ("scipy_openblas_get_num_threads", "scipy_openblas_set_num_threads"),
+                 ("openblas_get_num_threads64_", "openblas_set_num_threads64_"),
+                 ("openblas_get_num_threads", "openblas_set_num_threads"),
+                 ("MKL_Get_Max_Threads", "MKL_Set_Num_Threads"))
+
+
+def _blas_libraries() -> list:
+    """``(get_threads, set_threads)`` of every BLAS library loaded in this process, found in
+    ``/proc/self/maps`` (Linux; elsewhere none is found)."""
+    import ctypes
+
+    try:
+        with open("/proc/self/maps") as maps:
+            paths = sorted({line.split()[-1] for line in maps if line.rstrip().endswith(".so")
+                            or ".so." in line})
+    except OSError:
+        return []
+    out = []
+    for path in paths:
+        name = os.path.basename(path).lower()
+        if not path.startswith("/") or not ("openblas" in name or "mkl_rt" in name):
+            continue
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for get, put in _BLAS_SYMBOLS:
+            if hasattr(lib, get) and hasattr(lib, put):
+                out.append((getattr(lib, get), getattr(lib, put)))
+                break
+    return out
+
+
+class single_threaded_blas:
+    """Context: numpy's and scipy's BLAS on one thread, restored after.
+
+    OpenBLAS splits a dot product of more than ~1e4 entries between its threads (one per core
+    by default), and the partial sums round differently: the least-squares solve of the
+    stress-free packing (:func:`geodem.build.isotropic.stress_free`) then gave another
+    specimen on a machine with another core count (a 12,000-element 2-D packing: different
+    positions with 1 and 2 BLAS threads). On one thread it is the same everywhere, and faster
+    (0.28 s against 0.97 s for that solve; a thread hand-off per dot costs more than the dot).
+    ``.found``: how many BLAS libraries were set (0: none found, nothing changed)."""
+
+    def __enter__(self):
+        import numpy  # noqa: F401 - load numpy's BLAS before looking for it
+
+        self._libs = _blas_libraries()
+        self._old = [int(get()) for get, _ in self._libs]
+        for _, put in self._libs:
+            put(1)
+        self.found = len(self._libs)
+        return self
+
+    def __exit__(self, *exc):
+        for (_, put), n in zip(self._libs, self._old):
+            put(max(1, n))
+        return False

@@ -49,6 +49,7 @@ import numpy as np
 from numba import njit
 
 from geodem.build import progress
+from geodem.threads import single_threaded_blas
 
 __all__ = ["bond_network", "isotropic_packing", "jam", "stress_free", "stress_free_network"]
 
@@ -377,7 +378,10 @@ def stress_free(x, r, i, j, faces, lo, hi, *, prestress=DEFAULT_PRESTRESS, itera
         vals += [sign, -np.ones(nf)]
         a = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                        shape=(nb + nf, n * (dim + 1))).tocsr()
-        sol = lsqr(a, -np.concatenate([rb, rf]), atol=1e-14, btol=1e-14, iter_lim=20000)[0]
+        # one BLAS thread: lsqr's dot products then sum in the same order on every machine
+        with single_threaded_blas():
+            sol = lsqr(a, -np.concatenate([rb, rf]), atol=1e-14, btol=1e-14,
+                       iter_lim=20000)[0]
         sol = sol.reshape(n, dim + 1)
         x += sol[:, :dim]
         r += sol[:, dim]
