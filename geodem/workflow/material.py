@@ -110,7 +110,7 @@ def resolution_warnings(name: str, cal: dict, d_mean: float | None, dim: int) ->
     """A warning when turning elements (``rotation`` in the calibrated ``element``) serve at
     an element size more than :data:`SAME_RESOLUTION` away from the calibration's: their
     rolling springs make the strength depend on the resolution (the library sandstone's UCS
-    measured 22 % lower at 2x finer elements while E moved 2 %, docs/calibration.md
+    measured 20 % lower at 2x finer elements while E moved 2 %, docs/calibration.md
     "Resolution transfer"), so the calibrated numbers hold at the calibration's size only."""
     cal_d = (cal.get("specimen") or {}).get("d_mean")
     if d_mean is None or not cal_d or not (cal.get("element") or {}).get("rotation"):
@@ -119,7 +119,7 @@ def resolution_warnings(name: str, cal: dict, d_mean: float | None, dim: int) ->
         return []
     return [f"{name}: calibrated with turning elements at d_mean = {float(cal_d):g} m, used at "
             f"{float(d_mean):g} m: the strengths of turning elements depend on the resolution "
-            f"(UCS 22 % lower at 2x finer elements for the library sandstone; "
+            f"(UCS 20 % lower at 2x finer elements for the library sandstone; "
             f"docs/calibration.md 'Resolution transfer'); for calibrated strengths calibrate at "
             f"this size: geodem calibrate {name} --dim {dim} --d-mean {float(d_mean):g} "
             f"-o DIR"]
