@@ -789,16 +789,24 @@ def calibrate_cmd(
     fit: FitOpt = None,
     disc_diameter: DiscDiameterOpt = None,
     disc_drop: DiscDropOpt = None,
+    recipe: Annotated[Optional[str], typer.Option(
+        "--recipe", help="'library': the library's recipe for this rock (2-D: turning "
+                         "elements, bond moment 100, the rolling stiffness by its friction "
+                         "angle, the friction angle matched on three packings; 3-D: "
+                         "translating elements, four targets), for a rock of your own; the "
+                         "other recipe options then change it (docs/calibration.md).")] = None,
     backend: Annotated[Optional[str], typer.Option(
         "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
 ):
 
     from geodem.studies.calibrate import (CalibrationSpec, UnreachableTarget, calibrate,
-                                           check_reachable, save_calibration)
+                                           check_reachable, library_recipe, save_calibration)
     from geodem.materials_library import load_material, material_path
 
     if prefer not in ("Cu", "Tu"):
         _fail(f"--prefer {prefer!r}: allowed: Cu or Tu", USER_ERROR)
+    if recipe not in (None, "library"):
+        _fail(f"--recipe {recipe!r}: allowed: library", USER_ERROR)
     _check_fit(fit)
     mat = load_material(material)
     path = material_path(material)
@@ -812,10 +820,19 @@ def calibrate_cmd(
     if min(size) < 4 * d_mean:
         _fail(f"--d-mean {d_mean:g} m: allowed up to {min(size) / 4:g} m (the specimens are "
               f"{min(size):g} m across and need at least 4 elements)", USER_ERROR)
-    recipe = _stored_recipe(mat, dim, packing, bond_gap, bond_weibull, bond_moment,
-                            rolling_friction, rolling_stiffness, friction, packings)
-    if recipe is not None:
-        structure, friction, packings, disc = recipe
+    stored = None if recipe else _stored_recipe(mat, dim, packing, bond_gap, bond_weibull,
+                                                bond_moment, rolling_friction,
+                                                rolling_stiffness, friction, packings)
+    if recipe == "library":
+        structure, lib_friction, lib_packings = library_recipe(dim, mat.values())
+        given = _rotation_structure(bond_moment, rolling_friction, rolling_stiffness,
+                                    stored=structure)
+        structure = {**structure, **given, "packing": packing or structure["packing"],
+                     "bond_gap": bond_gap, "bond_strength_weibull": bond_weibull}
+        friction = lib_friction if friction is None else bool(friction)
+        packings, disc = packings or lib_packings, {}
+    elif stored is not None:
+        structure, friction, packings, disc = stored
     else:
         structure = {"packing": packing or "isotropic", "bond_gap": bond_gap,
                      "bond_strength_weibull": bond_weibull,
@@ -838,7 +855,9 @@ def calibrate_cmd(
     con = _out()
     con.print(f"calibrating {mat.name} ({dim}-D specimens, d = {d_mean:g} m) -> {out}",
               highlight=False)
-    if recipe is not None:
+    if recipe == "library":
+        con.print(f"the library's {dim}-D recipe: {_recipe_text(spec)}", highlight=False)
+    elif stored is not None:
         con.print(f"the stored {dim}-D calibration's recipe: {_recipe_text(spec)} (give "
                   "--packing, --bond-*, --rolling-*, --friction/--no-friction or --packings "
                   "to choose another)", highlight=False)

@@ -73,6 +73,7 @@ from geodem import threads
 from geodem.materials import macro_to_micro, per_size
 
 __all__ = ["CalibrationSpec", "UnreachableTarget", "calibrate", "check_reachable",
+           "library_recipe",
            "brazilian_check", "measure_friction", "friction_angle", "save_calibration",
            "save_brazilian_check",
            "calibration_block", "to_unknowns", "from_unknowns", "TOLERANCES"]
@@ -137,6 +138,33 @@ PRIOR_ROTATION = {
     2: {"E": 2.75, "Tu": 4.6, "Cu": 12.8, "s_of_nu": (0.65, 0.20, -0.7), "dnu_ds": -0.7,
         "phi_of_mu": ((0.15, 35.4), (0.35, 39.9)), "dlnCu_dlnmu": 0.15},
 }
+
+
+#: the library's 2-D recipe (docs/calibration.md, "Measured: the library"): turning elements
+#: with moment-resisting bonds, the friction angle matched on the mean of three packings, and
+#: the rolling stiffness BETA by the target friction angle: ``(lowest phi [deg], BETA)``, from
+#: the six rocks' records (BETA 2 met 35-50 deg, 3 met 28, 5 met 25; at BETA 4 the stiff
+#: clay's elements kept 29.0 deg at the lowest contact friction)
+LIBRARY_BETA_BY_PHI = ((33.0, 2.0), (26.5, 3.0), (0.0, 5.0))
+LIBRARY_BOND_MOMENT = 100.0
+LIBRARY_PACKINGS = 3
+
+
+def library_recipe(dim: int, targets: dict) -> tuple[dict, bool, int]:
+    """The library's recipe for a rock with ``targets`` (``mu_i`` the tangent of its friction
+    angle): ``(structure, friction, packings)``. 2-D: turning elements (bond moment
+    :data:`LIBRARY_BOND_MOMENT`, BETA from :data:`LIBRARY_BETA_BY_PHI`), the friction angle
+    matched when ``mu_i`` is given, :data:`LIBRARY_PACKINGS` packings. 3-D: the 3-D library's
+    translating elements and four targets on one packing (turning 3-D elements have not met
+    the friction angles yet: docs/calibration.md)."""
+    if dim == 3:
+        return {"packing": "isotropic"}, False, 1
+    mu_i = targets.get("mu_i")
+    phi = math.degrees(math.atan(float(mu_i))) if mu_i else 35.0
+    beta = next(b for lowest, b in LIBRARY_BETA_BY_PHI if phi >= lowest)
+    structure = {"packing": "isotropic", "rotation": True, "bond_moment": LIBRARY_BOND_MOMENT,
+                 "rolling_friction": 0.0, "rolling_stiffness": beta}
+    return structure, bool(mu_i), LIBRARY_PACKINGS
 
 
 def prior_table(dim: int, structure: dict | None = None) -> dict:

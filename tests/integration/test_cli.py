@@ -225,6 +225,13 @@ def test_calibrate_bad_prefer(tmp_path):
     assert "--prefer 'xx': allowed: Cu or Tu" in flat(res.output)
 
 
+def test_calibrate_bad_recipe_writes_nothing(tmp_path):
+    res = invoke("calibrate", "granite", "-o", str(tmp_path / "c"), "--recipe", "mine")
+    assert res.exit_code == 2, res.output
+    assert "--recipe 'mine': allowed: library" in flat(res.output)
+    assert not (tmp_path / "c").exists()
+
+
 def test_calibrate_refuses_a_rock_outside_the_charted_region(tmp_path):
     import yaml
 

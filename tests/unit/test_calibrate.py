@@ -370,3 +370,23 @@ def test_calibrate_repeats_the_stored_recipe_unless_told_otherwise():
         assert _stored_recipe(sand, 2, *options) is None
     bare = sand.model_copy(update={"calibrated": None})
     assert _stored_recipe(bare, 2, *[None] * 8) is None
+
+
+@pytest.mark.parametrize("phi, beta", [(50.0, 2.0), (35.0, 2.0), (33.0, 2.0), (28.0, 3.0),
+                                       (26.5, 3.0), (25.0, 5.0)])
+def test_the_library_recipe_takes_the_rolling_stiffness_from_the_friction_angle(phi, beta):
+    # the library's records: BETA 2 met 35-50 deg, 3 met 28 (mudstone), 5 met 25 (stiff clay)
+    targets = {"mu_i": math.tan(math.radians(phi))}
+    structure, friction, packings = C.library_recipe(2, targets)
+    assert structure["rotation"] and structure["bond_moment"] == 100.0
+    assert structure["rolling_stiffness"] == beta
+    assert friction and packings == 3
+
+
+def test_the_library_recipe_in_3d_is_the_3d_librarys():
+    assert C.library_recipe(3, {"mu_i": 0.7}) == ({"packing": "isotropic"}, False, 1)
+
+
+def test_without_a_friction_angle_the_recipe_does_not_match_one():
+    structure, friction, _ = C.library_recipe(2, {"mu_i": None})
+    assert structure["rolling_stiffness"] == 2.0 and not friction
