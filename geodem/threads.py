@@ -13,6 +13,7 @@ specimen after 60 s (it takes ~2 s on OpenMP) and ``geodem validate`` not after 
 """
 from __future__ import annotations
 
+import functools
 import os
 import sys
 
@@ -115,6 +116,13 @@ def _blas_libraries() -> list:
     return out
 
 
+@functools.lru_cache(maxsize=1)
+def _blas_libraries_cached() -> tuple:
+    """:func:`_blas_libraries`, looked up once per process (numpy's and scipy's BLAS stay
+    loaded once imported)."""
+    return tuple(_blas_libraries())
+
+
 class single_threaded_blas:
     """Context: numpy's and scipy's BLAS on one thread, restored after.
 
@@ -129,7 +137,7 @@ class single_threaded_blas:
     def __enter__(self):
         import numpy  # noqa: F401 - load numpy's BLAS before looking for it
 
-        self._libs = _blas_libraries()
+        self._libs = _blas_libraries_cached()
         self._old = [int(get()) for get, _ in self._libs]
         for _, put in self._libs:
             put(1)

@@ -351,6 +351,8 @@ def stress_free(x, r, i, j, faces, lo, hi, *, prestress=DEFAULT_PRESTRESS, itera
     nb, nf = i.size, len(faces)
     fe, fa, fs = faces[:, 0], faces[:, 1], faces[:, 2]
     res = math.inf
+    # one BLAS thread: lsqr's dot products then sum in the same order on every machine
+    blas = single_threaded_blas()
     for _ in range(iterations):
         dvec = x[j] - x[i]
         dist = np.linalg.norm(dvec, axis=1)
@@ -378,8 +380,7 @@ def stress_free(x, r, i, j, faces, lo, hi, *, prestress=DEFAULT_PRESTRESS, itera
         vals += [sign, -np.ones(nf)]
         a = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                        shape=(nb + nf, n * (dim + 1))).tocsr()
-        # one BLAS thread: lsqr's dot products then sum in the same order on every machine
-        with single_threaded_blas():
+        with blas:
             sol = lsqr(a, -np.concatenate([rb, rf]), atol=1e-14, btol=1e-14,
                        iter_lim=20000)[0]
         sol = sol.reshape(n, dim + 1)
