@@ -927,7 +927,9 @@ def rock_cmd(
     save: Annotated[bool, typer.Option("--save", help=(
         "Store this Brazilian check (the mean over the packings, and its disc) in the "
         "material file's calibration record, in place of the calibration's own; only for "
-        "the stored element parameters and micro-structure."))] = False,
+        "the stored element parameters and micro-structure. With the calibration's packings "
+        "it also stores each packing's E, nu, Cu and Tu, if their mean reproduces the "
+        "record's."))] = False,
 ):
     import json
 
@@ -999,6 +1001,13 @@ def rock_cmd(
                                      specs[0].disc_diameter, specs[0].disc_drop)
         con.print(f"saved the Brazilian check ({check['over_target']:.3g} x Tu, disc "
                   f"{specs[0].disc_diameter:g} m) into {path}", highlight=False)
+        if packings == int(sp.get("packings") or 1) > 1 and first == int(sp.get("seed", 0)):
+            from geodem.studies.calibrate import save_packing_measurements
+
+            miss = save_packing_measurements(path, dim, runs)
+            con.print(f"each packing's E, nu, Cu and Tu not stored: {miss}" if miss else
+                      f"saved each packing's E, nu, Cu and Tu (their mean reproduces the "
+                      f"record's) into {path}", highlight=False)
 
 
 def _check_fit(fit) -> None:

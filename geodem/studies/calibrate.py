@@ -879,8 +879,9 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
                "measured": {k: m.get(k) for k in keys},
                "rel_errors": rel, "nu_abs_error": m["nu"] - tg["nu"],
                "wall_time_s": m["wall_time_s"]}
-        if "scatter" in m:  # several packings: their spread
+        if "scatter" in m:  # several packings: their spread, and each one's numbers
             rec["scatter"] = m["scatter"]
+            rec["per_packing"] = [{k: r[k] for k in KEYS} for r in m["per_packing"]]
         if use_friction:
             phi = m.get("phi")
             rec["phi_abs_error"] = (phi - tg["phi"] if phi is not None and math.isfinite(phi)
@@ -933,6 +934,7 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         "material": spec.name, "dim": spec.dim,
         "targets": {k: tg[k] for k in keys},
         "measured": best["measured"],
+        "measured_per_packing": best.get("per_packing"),
         "rel_errors": best["rel_errors"],
         "abs_errors": {k: (None if best["measured"].get(k) is None
                            or not math.isfinite(best["measured"][k])
@@ -1020,6 +1022,9 @@ def calibration_block(summary: dict) -> dict:
         "notes": list(summary["notes"]),
         "specimen": summary["specimen"],
     }
+    if summary.get("measured_per_packing"):  # seed, seed + 1, ...: one can be re-run alone
+        block["measured_per_packing"] = [{k: float(v) for k, v in r.items()}
+                                         for r in summary["measured_per_packing"]]
     if "date" in summary:  # when and how long: the library tables quote them
         block["run"] = {"date": summary["date"], "wall_time_s": round(float(
             summary["wall_time_s"]), 1), "threads": summary.get("threads")}
@@ -1075,6 +1080,29 @@ def save_brazilian_check(path, dim: int, checks: list, disc_diameter: float,
         rec["specimen"].update(disc_diameter=float(disc_diameter), disc_drop=float(disc_drop))
     _update_calibrated(path, update)
     return check
+
+
+def save_packing_measurements(path, dim: int, runs: list, rel: float = 1e-6) -> str | None:
+    """Store each packing's E, nu, Cu and Tu (``runs``: :func:`measure_rock` of the stored
+    element parameters on the record's seeds, in order) as ``measured_per_packing`` in the
+    ``calibrated.<dim>d`` record of the material file ``path``, so that a check can re-run one
+    packing alone. Only when their mean reproduces the record's ``measured`` to ``rel`` (nu:
+    absolute); otherwise nothing is written and the mismatch is returned."""
+    from geodem.materials_library import load_material
+
+    rec = load_material(str(path)).calibrated[f"{dim}d"]
+    per = [{k: float(r["measured"][k]) for k in KEYS} for r in runs]
+    for k in KEYS:
+        mean, stored = float(np.mean([r[k] for r in per])), float(rec["measured"][k])
+        off = abs(mean - stored) if k == "nu" else abs(mean / stored - 1)
+        if off > rel:
+            return (f"the mean {k} of the {len(per)} packings, {mean:.7g}, does not reproduce "
+                    f"the record's {stored:.7g}")
+
+    def update(old):
+        old[f"{dim}d"]["measured_per_packing"] = per
+    _update_calibrated(path, update)
+    return None
 
 
 def _update_calibrated(path, update) -> None:

@@ -4,7 +4,9 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
+import yaml
 
 from geodem.studies import calibrate as C
 
@@ -327,6 +329,14 @@ def test_several_packings_calibrate_their_mean(tmp_path):
     first = out["history"][0]
     assert first["scatter"]["E"] == pytest.approx(0.06 * first["measured"]["E"], rel=1e-9)
     assert first["scatter"]["nu"] == pytest.approx(0.01, rel=1e-9)
+    # each packing's numbers are stored, so that one packing can be re-run and checked alone
+    best = out["history"][out["best_iteration"] - 1]
+    block = C.calibration_block(out)["2d"]
+    per = block["measured_per_packing"]
+    assert [r["E"] for r in per] == pytest.approx([m["E"] for m in best["per_packing"]])
+    assert per[0]["E"] == pytest.approx(out["measured"]["E"] * 0.94, rel=1e-9)
+    assert np.mean([r["Cu"] for r in per]) == pytest.approx(block["measured"]["Cu"], rel=1e-9)
+    assert "measured_per_packing" not in C.calibration_block(one)["2d"]
 
 
 def test_over_packings_keeps_a_missing_confined_peak():
@@ -390,3 +400,20 @@ def test_the_library_recipe_in_3d_is_the_3d_librarys():
 def test_without_a_friction_angle_the_recipe_does_not_match_one():
     structure, friction, _ = C.library_recipe(2, {"mu_i": None})
     assert structure["rolling_stiffness"] == 2.0 and not friction
+
+
+def test_packing_measurements_are_stored_only_when_they_reproduce_the_record(tmp_path):
+    src = Path(__file__).resolve().parents[2] / "materials" / "sandstone.yaml"
+    path = tmp_path / "sandstone.yaml"
+    path.write_text(src.read_text())
+    rec = yaml.safe_load(path.read_text())["calibrated"]["2d"]["measured"]
+    runs = [{"measured": {k: rec[k] * f for k in C.KEYS}} for f in (0.9, 1.0, 1.1)]
+    before = path.read_text()
+    bad = [{"measured": dict(r["measured"], Cu=r["measured"]["Cu"] * 1.01)} for r in runs]
+    assert "Cu" in C.save_packing_measurements(path, 2, bad)
+    assert path.read_text() == before  # nothing written
+    assert C.save_packing_measurements(path, 2, runs) is None
+    stored = yaml.safe_load(path.read_text())["calibrated"]["2d"]
+    assert [r["E"] for r in stored["measured_per_packing"]] == pytest.approx(
+        [rec["E"] * f for f in (0.9, 1.0, 1.1)], rel=1e-12)
+    assert stored["measured"] == rec  # the record itself untouched
