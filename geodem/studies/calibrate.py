@@ -306,10 +306,16 @@ class UnreachableTarget(ValueError):
 def check_reachable(spec: CalibrationSpec) -> None:
     """Raise :class:`UnreachableTarget` when ``spec.targets`` lie outside the region charted
     for ``spec.dim`` and its micro-structure (:func:`geodem.studies.reach.outside_region`)."""
-    from geodem.studies.reach import outside_region
+    from geodem.studies.reach import friction_out_of_reach, outside_region
 
     why = outside_region(spec.targets, spec.dim, spec.structure, spec.tolerances,
                          fit=spec.fit)
+    if not why and spec.friction:
+        why = friction_out_of_reach(spec.targets, spec.dim, spec.structure, spec.tolerances,
+                                    MU_RANGE, fit=spec.fit)
+        if why:
+            raise UnreachableTarget(f"{spec.name}: {why}. Calibrate the other four targets "
+                                    "(without --friction), or anyway (--force)")
     if why:
         raise UnreachableTarget(f"{spec.name}: {why}. Try a bond-strength scatter or a bond "
                                 "range (docs/calibration.md), or calibrate anyway (--force) "
@@ -332,7 +338,26 @@ def prior_guess(spec: CalibrationSpec) -> dict:
         s0, nu0, slope = p["s_of_nu"]
         s = float(np.clip(s0 + (t["nu"] - nu0) / slope, *S_RANGE))
         el["ks_per_d"] = s * el["kn_per_d"]
+    if spec.dim == 3:
+        _charted_prior(spec, el)
     return el
+
+
+def _charted_prior(spec: CalibrationSpec, el: dict) -> None:
+    """3-D, on the charted packing: ks / kn from the reach chart's nu(s), and mu from the
+    measured phi(s, mu) (:func:`geodem.studies.reach.s_for_nu`, ``friction_model``), which
+    depend on the springs far more than the 2-D-slope table assumes (a mudstone at nu 0.3
+    needs ks / kn 0.10, where the table put 0.26, and mu 0.05, where it put 0.22)."""
+    from geodem.studies.reach import friction_model, s_for_nu
+
+    s = s_for_nu(float(spec.targets["nu"]), 3, spec.structure, spec.fit)
+    if s is None:
+        return
+    el["ks_per_d"] = float(np.clip(s, *S_RANGE)) * el["kn_per_d"]
+    model = friction_model(3, spec.structure)
+    if spec.friction and model is not None:
+        mu = model.mu_for(s, friction_angle(spec.targets["mu_i"]))
+        el["mu"] = float(np.clip(mu, *MU_RANGE))
 
 
 #: slope ranges of the four response functions (physical signs; measured on random packings)
@@ -538,6 +563,12 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=Fal
     rhs = [y_target[1] - nu0, (y_target[3] - y_target[2]) - r0]
     bounds = [S_RANGE, tuple(np.log(RHO_RANGE)), tuple(np.log(MU_RANGE))]
     phi_slope = prior_mu(dim, y_target[4], structure)[1]
+    if dim == 3 and friction:  # the measured 3-D slope at the latest springs
+        from geodem.studies.reach import friction_model
+
+        model = friction_model(3, structure)
+        if model is not None:
+            phi_slope = model.slope(float(X[-1, 0]))
     phi = _phi_line(X[:, 2], Y[:, 4], y_target[4], phi_slope) if friction else None
     if phi is not None:  # phi depends on mu alone on the manifold: a triangular system
         rows.append(np.array([0.0, 0.0, phi[1]]))

@@ -288,3 +288,94 @@ def _plot(path, rec):
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+#: The friction angle of 3-D translating elements on the charted packing (isotropic, bond gap
+#: 0.01, no strength scatter): ``(ks / kn, mu, phi [deg], packings, rock)``, each the
+#: calibration's two-stage triaxial test (sigma_3 = 0 and 0.133 Cu, d = 0.01 m) on a library
+#: record's element parameters with its ``mu`` replaced: ``geodem rock FILE --dim 3 --friction
+#: -o DIR`` (one packing, seed 0), or an iteration of ``geodem calibrate FILE --dim 3 --friction
+#: --packings 3`` (three). Measured 2026-12-05, docs/calibration.md "Friction angle in 3-D".
+#: phi follows mu steeply on stiff shear springs and hardly on soft ones (the nu 0.3 rocks):
+#: there the bonds' tensile failure, suppressed by confinement, sets phi, not sliding.
+FRICTION_POINTS = {3: (
+    (0.095, 0.05, 28.8, 1, "stiff clay"),
+    (0.102, 0.05, 28.3, 1, "mudstone"),
+    (0.103, 0.143, 32.6, 3, "mudstone"),
+    (0.103, 0.217, 33.2, 3, "mudstone"),
+    (0.325, 0.05, 16.0, 1, "sandstone"),
+    (0.325, 0.255, 30.0, 1, "sandstone"),
+    (0.302, 0.343, 35.5, 3, "sandstone"),
+)}
+#: the structure the friction points were measured on
+FRICTION_STRUCTURE = {"packing": "isotropic"}
+
+
+class FrictionModel:
+    """``phi(s, mu) = a + b ln mu + c s + d s ln mu`` [deg] (s = ks / kn): its slope in ln mu,
+    ``b + d s``, grows with the shear springs."""
+
+    def __init__(self, a, b, c, d):
+        self.a, self.b, self.c, self.d = (float(v) for v in (a, b, c, d))
+
+    def phi(self, s: float, mu: float) -> float:
+        return self.a + self.c * s + self.slope(s) * math.log(mu)
+
+    def slope(self, s: float) -> float:
+        """d phi / d ln mu [deg] at ``s``."""
+        return self.b + self.d * s
+
+    def mu_for(self, s: float, phi: float) -> float:
+        """The contact friction that gives ``phi`` at ``s`` (unclipped)."""
+        return math.exp((phi - self.a - self.c * s) / self.slope(s))
+
+
+def friction_model(dim: int, structure: dict) -> FrictionModel | None:
+    """:class:`FrictionModel` fitted to :data:`FRICTION_POINTS` by least squares, or None when
+    no points apply to ``dim`` and ``structure``."""
+    pts = FRICTION_POINTS.get(dim)
+    if not pts or {k: v for k, v in structure.items() if v is not None} != FRICTION_STRUCTURE:
+        return None
+    s, mu, phi = (np.array([p[k] for p in pts], float) for k in range(3))
+    A = np.column_stack([np.ones_like(s), np.log(mu), s, s * np.log(mu)])
+    return FrictionModel(*np.linalg.lstsq(A, phi, rcond=None)[0])
+
+
+def s_for_nu(nu: float, dim: int, structure: dict, fit: str = "elastic",
+             chart: dict | None = None) -> float | None:
+    """The spring ratio ``ks / kn`` at which the charted packing gives ``nu`` (the mean nu of
+    the ``fit`` over each charted ks / kn, interpolated; clamped to the chart), or None when no
+    chart applies."""
+    chart = shipped_chart(dim) if chart is None else chart
+    if chart is None or {k: v for k, v in structure.items() if v is not None} != \
+            chart["structure"]:
+        return None
+    key = NU_KEY[fit]
+    by_s = {}
+    for p in chart["points"]:
+        if p.get(key) is not None and math.isfinite(p[key]):
+            by_s.setdefault(p["s"], []).append(p[key])
+    ss = np.array(sorted(by_s))
+    nus = np.array([np.mean(by_s[s]) for s in ss])  # falls with s
+    return float(np.interp(-nu, -nus, ss))
+
+
+def friction_out_of_reach(targets: dict, dim: int, structure: dict, tolerances: dict,
+                          mu_range: tuple, fit: str = "elastic") -> str | None:
+    """Why the friction angle ``atan(mu_i)`` lies outside what the contact friction in
+    ``mu_range`` gives elements whose spring ratio meets the target nu (:func:`s_for_nu`,
+    :func:`friction_model`), widened by the phi tolerance; None when inside or not charted."""
+    model = friction_model(dim, structure)
+    s = s_for_nu(float(targets["nu"]), dim, structure, fit)
+    if model is None or s is None:
+        return None
+    phi = math.degrees(math.atan(float(targets["mu_i"])))
+    lo, hi = model.phi(s, mu_range[0]), model.phi(s, mu_range[1])
+    tol = float(tolerances["phi"])
+    if lo - tol <= phi <= hi + tol:
+        return None
+    return (f"phi = {phi:.1f} deg (mu_i {float(targets['mu_i']):g}) is outside what the "
+            f"contact friction mu {mu_range[0]:g}-{mu_range[1]:g} gives {dim}-D translating "
+            f"elements with nu {float(targets['nu']):.2f} (ks / kn {s:.2f}): about "
+            f"{lo:.1f}-{hi:.1f} deg, fitted to the measured points (geodem.studies.reach."
+            f"FRICTION_POINTS; docs/calibration.md, 'Friction angle in 3-D')")

@@ -184,3 +184,73 @@ def test_merge_adds_points_and_replaces_the_same_grid_point(tmp_path, monkeypatc
     assert "--merge" in chart["command"]
     with pytest.raises(ValueError, match="mu"):
         reach.save_chart(dict(base, mu=0.5, points=[]), merge=True)
+
+
+# --- the friction angle of 3-D translating elements (reach.FRICTION_POINTS) ---------------
+from geodem.studies import reach as R  # noqa: E402
+from geodem.studies import calibrate as C  # noqa: E402
+
+ISO = {"packing": "isotropic"}
+
+
+def test_the_friction_model_follows_its_points():
+    """Least squares through the measured points: within 1.5 deg of each, and phi follows mu
+    about three times more steeply on the sandstone's springs (ks / kn 0.30) than on the
+    mudstone's (0.10): 35.5 - 16.0 deg over ln(0.343 / 0.05) against 33.2 - 28.3 over
+    ln(0.217 / 0.05)."""
+    m = R.friction_model(3, ISO)
+    for s, mu, phi, _, _ in R.FRICTION_POINTS[3]:
+        assert m.phi(s, mu) == pytest.approx(phi, abs=1.5)
+    assert m.slope(0.30) / m.slope(0.10) > 2.0
+    assert m.phi(0.2, m.mu_for(0.2, 31.0)) == pytest.approx(31.0, abs=1e-9)
+    assert R.friction_model(3, {"packing": "isotropic", "rotation": True}) is None
+    assert R.friction_model(2, ISO) is None
+
+
+def test_the_spring_ratio_for_a_poisson_ratio_comes_from_the_chart():
+    """The 3-D chart's elastic nu: 0.29-0.31 at ks / kn 0.1, 0.25-0.27 at 0.15, 0.20-0.21 at
+    0.25 (docs/calibration.md); the library's 3-D records sit at 0.10 (nu 0.3), 0.165 (0.25)
+    and 0.30 (0.2)."""
+    assert R.s_for_nu(0.30, 3, ISO) == pytest.approx(0.10, abs=0.01)
+    assert R.s_for_nu(0.25, 3, ISO) == pytest.approx(0.165, abs=0.015)
+    assert R.s_for_nu(0.20, 3, ISO) == pytest.approx(0.26, abs=0.02)
+    assert R.s_for_nu(0.9, 3, ISO) == pytest.approx(0.1)  # clamped to the chart
+    assert R.s_for_nu(0.3, 3, dict(ISO, bond_gap=0.05)) is None
+
+
+def _clay(phi, nu=0.3):
+    return {"E": 5e7, "nu": nu, "Tu": 2e4, "Cu": 2e5, "mu_i": math.tan(math.radians(phi)),
+            "rho": 2000.0}
+
+
+def test_a_friction_angle_below_the_3d_floor_is_refused_up_front(tmp_path):
+    """A stiff clay (nu 0.3, phi 25 deg): 3-D elements at nu 0.3 measure 28.8 deg at the lowest
+    contact friction, so 25 deg is refused before any folder is made; 28 deg (the mudstone,
+    28.3 measured at mu 0.05) is not."""
+    why = R.friction_out_of_reach(_clay(25.0), 3, ISO, TOLERANCES, C.MU_RANGE)
+    assert why and "phi = 25.0 deg" in why and "ks / kn 0.10" in why
+    low = float(why.split("about ")[1].split("-")[0])
+    assert 27.5 < low < 29.5
+    assert R.friction_out_of_reach(_clay(28.0), 3, ISO, TOLERANCES, C.MU_RANGE) is None
+    assert R.friction_out_of_reach(_clay(25.0, nu=0.2), 3, ISO, TOLERANCES, C.MU_RANGE) is None
+    spec = CalibrationSpec(targets=_clay(25.0), name="clay", dim=3, friction=True,
+                           fit="elastic", ucs_size=(0.1, 0.1, 0.2))
+    with pytest.raises(UnreachableTarget, match="without --friction"):
+        calibrate(spec, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    C.check_reachable(CalibrationSpec(targets=_clay(25.0), name="clay", dim=3, fit="elastic",
+                                     ucs_size=(0.1, 0.1, 0.2)))
+
+
+def test_the_3d_prior_takes_the_springs_and_friction_from_the_measurements():
+    """A mudstone (nu 0.3, phi 28 deg) starts at ks / kn 0.10 and mu at the lower bound (the
+    slope table of 2-D put 0.26 and 0.22); a sandstone (nu 0.2, 35 deg) near its record's
+    mu 0.34."""
+    mud = C.prior_guess(CalibrationSpec(targets=_clay(28.0), dim=3, friction=True,
+                                        fit="elastic", ucs_size=(0.1, 0.1, 0.2)))
+    assert mud["ks_per_d"] / mud["kn_per_d"] == pytest.approx(0.10, abs=0.01)
+    assert mud["mu"] == pytest.approx(C.MU_RANGE[0])
+    sand = dict(_clay(35.0, nu=0.2), E=1.5e10, Tu=4e6, Cu=7.5e7)
+    el = C.prior_guess(CalibrationSpec(targets=sand, dim=3, friction=True, fit="elastic",
+                                        ucs_size=(0.1, 0.1, 0.2)))
+    assert 0.25 < el["mu"] < 0.45
