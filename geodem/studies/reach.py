@@ -297,7 +297,9 @@ def _plot(path, rec):
 #: -o DIR`` (one packing, seed 0), or an iteration of ``geodem calibrate FILE --dim 3 --friction
 #: --packings 3`` (three). Measured 2026-12-05, docs/calibration.md "Friction angle in 3-D".
 #: phi follows mu steeply on stiff shear springs and hardly on soft ones (the nu 0.3 rocks):
-#: there the bonds' tensile failure, suppressed by confinement, sets phi, not sliding.
+#: there the bonds' tensile failure, suppressed by confinement, sets phi, not sliding. At the
+#: top of the range no angle is measured: the 3-D granite's elements (ks / kn 0.182) at mu 1.0
+#: made Cu +66 % and a confined stage that hardened to the strain limit without a peak.
 FRICTION_POINTS = {3: (
     (0.095, 0.05, 28.8, 1, "stiff clay"),
     (0.102, 0.05, 28.3, 1, "mudstone"),
@@ -362,20 +364,22 @@ def s_for_nu(nu: float, dim: int, structure: dict, fit: str = "elastic",
 
 def friction_out_of_reach(targets: dict, dim: int, structure: dict, tolerances: dict,
                           mu_range: tuple, fit: str = "elastic") -> str | None:
-    """Why the friction angle ``atan(mu_i)`` lies outside what the contact friction in
-    ``mu_range`` gives elements whose spring ratio meets the target nu (:func:`s_for_nu`,
-    :func:`friction_model`), widened by the phi tolerance; None when inside or not charted."""
+    """Why the friction angle ``atan(mu_i)`` lies below what the lowest contact friction
+    ``mu_range[0]`` gives elements whose spring ratio meets the target nu (:func:`s_for_nu`,
+    :func:`friction_model`, less the phi tolerance); None when above, or not charted. The
+    points were measured at the lowest mu; above them the model is not trusted (a 3-D granite at
+    mu 1.0 hardened in its confined stage instead of peaking), and a target beyond the top is
+    found out by the calibration itself."""
     model = friction_model(dim, structure)
     s = s_for_nu(float(targets["nu"]), dim, structure, fit)
     if model is None or s is None:
         return None
     phi = math.degrees(math.atan(float(targets["mu_i"])))
-    lo, hi = model.phi(s, mu_range[0]), model.phi(s, mu_range[1])
-    tol = float(tolerances["phi"])
-    if lo - tol <= phi <= hi + tol:
+    lo = model.phi(s, mu_range[0])
+    if phi >= lo - float(tolerances["phi"]):
         return None
-    return (f"phi = {phi:.1f} deg (mu_i {float(targets['mu_i']):g}) is outside what the "
-            f"contact friction mu {mu_range[0]:g}-{mu_range[1]:g} gives {dim}-D translating "
-            f"elements with nu {float(targets['nu']):.2f} (ks / kn {s:.2f}): about "
-            f"{lo:.1f}-{hi:.1f} deg, fitted to the measured points (geodem.studies.reach."
-            f"FRICTION_POINTS; docs/calibration.md, 'Friction angle in 3-D')")
+    return (f"phi = {phi:.1f} deg (mu_i {float(targets['mu_i']):g}) is below what {dim}-D "
+            f"translating elements with nu {float(targets['nu']):.2f} (ks / kn {s:.2f}) give "
+            f"at the lowest contact friction, mu {mu_range[0]:g}: about {lo:.1f} deg, fitted "
+            f"to the measured points (geodem.studies.reach.FRICTION_POINTS; "
+            f"docs/calibration.md, 'Friction angle in 3-D')")

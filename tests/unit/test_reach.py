@@ -229,8 +229,11 @@ def test_a_friction_angle_below_the_3d_floor_is_refused_up_front(tmp_path):
     28.3 measured at mu 0.05) is not."""
     why = R.friction_out_of_reach(_clay(25.0), 3, ISO, TOLERANCES, C.MU_RANGE)
     assert why and "phi = 25.0 deg" in why and "ks / kn 0.10" in why
-    low = float(why.split("about ")[1].split("-")[0])
+    low = float(why.split("about ")[1].split(" deg")[0])
     assert 27.5 < low < 29.5
+    # no upper refusal: the model is not trusted above the measured friction (granite, 50 deg)
+    assert R.friction_out_of_reach(_clay(50.0, nu=0.25), 3, ISO, TOLERANCES,
+                                   C.MU_RANGE) is None
     assert R.friction_out_of_reach(_clay(28.0), 3, ISO, TOLERANCES, C.MU_RANGE) is None
     assert R.friction_out_of_reach(_clay(25.0, nu=0.2), 3, ISO, TOLERANCES, C.MU_RANGE) is None
     spec = CalibrationSpec(targets=_clay(25.0), name="clay", dim=3, friction=True,
