@@ -154,17 +154,31 @@ def library_recipe(dim: int, targets: dict) -> tuple[dict, bool, int]:
     """The library's recipe for a rock with ``targets`` (``mu_i`` the tangent of its friction
     angle): ``(structure, friction, packings)``. 2-D: turning elements (bond moment
     :data:`LIBRARY_BOND_MOMENT`, BETA from :data:`LIBRARY_BETA_BY_PHI`), the friction angle
-    matched when ``mu_i`` is given, :data:`LIBRARY_PACKINGS` packings. 3-D: the 3-D library's
-    translating elements and four targets on one packing (turning 3-D elements have not met
-    the friction angles yet: docs/calibration.md)."""
-    if dim == 3:
-        return {"packing": "isotropic"}, False, 1
+    matched when ``mu_i`` is given, :data:`LIBRARY_PACKINGS` packings. 3-D: translating
+    elements on as many packings, the friction angle matched unless it lies below what they
+    reach (:func:`library_friction_left_out`; turning 3-D elements overshoot the angles:
+    docs/calibration.md)."""
     mu_i = targets.get("mu_i")
+    if dim == 3:
+        structure = {"packing": "isotropic"}
+        friction = bool(mu_i) and library_friction_left_out(targets) is None
+        return structure, friction, LIBRARY_PACKINGS
     phi = math.degrees(math.atan(float(mu_i))) if mu_i else 35.0
     beta = next(b for lowest, b in LIBRARY_BETA_BY_PHI if phi >= lowest)
     structure = {"packing": "isotropic", "rotation": True, "bond_moment": LIBRARY_BOND_MOMENT,
                  "rolling_friction": 0.0, "rolling_stiffness": beta}
     return structure, bool(mu_i), LIBRARY_PACKINGS
+
+
+def library_friction_left_out(targets: dict) -> str | None:
+    """Why the 3-D library recipe leaves the friction angle of ``targets`` out (below what 3-D
+    translating elements reach: :func:`geodem.studies.reach.friction_out_of_reach`), or
+    None."""
+    from geodem.studies.reach import friction_out_of_reach
+
+    if not targets.get("mu_i"):
+        return None
+    return friction_out_of_reach(targets, 3, {"packing": "isotropic"}, TOLERANCES, MU_RANGE)
 
 
 def prior_table(dim: int, structure: dict | None = None) -> dict:

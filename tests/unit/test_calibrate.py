@@ -393,8 +393,19 @@ def test_the_library_recipe_takes_the_rolling_stiffness_from_the_friction_angle(
     assert friction and packings == 3
 
 
-def test_the_library_recipe_in_3d_is_the_3d_librarys():
-    assert C.library_recipe(3, {"mu_i": 0.7}) == ({"packing": "isotropic"}, False, 1)
+def test_the_library_recipe_in_3d_matches_the_friction_angle_where_it_can():
+    """Translating elements on three packings; the friction angle matched (a sandstone's 35
+    deg at nu 0.2, a mudstone's 28 at nu 0.3), except below the 3-D floor (a stiff clay's 25
+    deg at nu 0.3: about 28.5 deg at the lowest contact friction), which is left out with
+    the reason."""
+    sand = {"nu": 0.2, "mu_i": math.tan(math.radians(35.0))}
+    assert C.library_recipe(3, sand) == ({"packing": "isotropic"}, True, 3)
+    mud = {"nu": 0.3, "mu_i": math.tan(math.radians(28.0))}
+    assert C.library_recipe(3, mud)[1] and C.library_friction_left_out(mud) is None
+    clay = {"nu": 0.3, "mu_i": math.tan(math.radians(25.0))}
+    assert C.library_recipe(3, clay) == ({"packing": "isotropic"}, False, 3)
+    assert "below" in C.library_friction_left_out(clay)
+    assert not C.library_recipe(3, {"nu": 0.3, "mu_i": None})[1]
 
 
 def test_without_a_friction_angle_the_recipe_does_not_match_one():
