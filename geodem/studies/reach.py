@@ -299,7 +299,8 @@ def _plot(path, rec):
 #: phi follows mu steeply on stiff shear springs and hardly on soft ones (the nu 0.3 rocks):
 #: there the bonds' tensile failure, suppressed by confinement, sets phi, not sliding. At the
 #: top of the range no angle is measured: the 3-D granite's elements (ks / kn 0.182) at mu 1.0
-#: made Cu +66 % and a confined stage that hardened to the strain limit without a peak.
+#: made Cu +66 % and a confined stage that hardened to the strain limit without a peak, and so
+#: did the limestone's (about 0.17) at mu 0.60.
 FRICTION_POINTS = {3: (
     (0.095, 0.05, 28.8, 1, "stiff clay"),
     (0.102, 0.05, 28.3, 1, "mudstone"),
@@ -308,20 +309,23 @@ FRICTION_POINTS = {3: (
     (0.325, 0.05, 16.0, 1, "sandstone"),
     (0.325, 0.255, 30.0, 1, "sandstone"),
     (0.302, 0.343, 35.5, 3, "sandstone"),
+    (0.172, 0.430, 41.0, 3, "limestone"),
 )}
 #: the structure the friction points were measured on
 FRICTION_STRUCTURE = {"packing": "isotropic"}
 
 
 class FrictionModel:
-    """``phi(s, mu) = a + b ln mu + c s + d s ln mu`` [deg] (s = ks / kn): its slope in ln mu,
-    ``b + d s``, grows with the shear springs."""
+    """``phi(s, mu) = a + b ln mu + c s + d s ln mu + e s^2`` [deg] (s = ks / kn): its slope in
+    ln mu, ``b + d s``, grows with the shear springs, and at a fixed mu phi peaks at middling
+    springs (the limestone's 41 deg at mu 0.43, ks / kn 0.17, above both the mudstone's and
+    the sandstone's)."""
 
-    def __init__(self, a, b, c, d):
-        self.a, self.b, self.c, self.d = (float(v) for v in (a, b, c, d))
+    def __init__(self, a, b, c, d, e):
+        self.a, self.b, self.c, self.d, self.e = (float(v) for v in (a, b, c, d, e))
 
     def phi(self, s: float, mu: float) -> float:
-        return self.a + self.c * s + self.slope(s) * math.log(mu)
+        return self.a + self.c * s + self.e * s * s + self.slope(s) * math.log(mu)
 
     def slope(self, s: float) -> float:
         """d phi / d ln mu [deg] at ``s``."""
@@ -329,18 +333,39 @@ class FrictionModel:
 
     def mu_for(self, s: float, phi: float) -> float:
         """The contact friction that gives ``phi`` at ``s`` (unclipped)."""
-        return math.exp((phi - self.a - self.c * s) / self.slope(s))
+        return math.exp((phi - self.a - self.c * s - self.e * s * s) / self.slope(s))
+
+
+def _friction_points(dim: int, structure: dict):
+    pts = FRICTION_POINTS.get(dim)
+    if not pts or {k: v for k, v in structure.items() if v is not None} != FRICTION_STRUCTURE:
+        return None
+    return [np.array([p[k] for p in pts], float) for k in range(3)]
 
 
 def friction_model(dim: int, structure: dict) -> FrictionModel | None:
     """:class:`FrictionModel` fitted to :data:`FRICTION_POINTS` by least squares, or None when
-    no points apply to ``dim`` and ``structure``."""
-    pts = FRICTION_POINTS.get(dim)
-    if not pts or {k: v for k, v in structure.items() if v is not None} != FRICTION_STRUCTURE:
+    no points apply to ``dim`` and ``structure``. A prior for the calibration, not a bound."""
+    pts = _friction_points(dim, structure)
+    if pts is None:
         return None
-    s, mu, phi = (np.array([p[k] for p in pts], float) for k in range(3))
-    A = np.column_stack([np.ones_like(s), np.log(mu), s, s * np.log(mu)])
+    s, mu, phi = pts
+    A = np.column_stack([np.ones_like(s), np.log(mu), s, s * np.log(mu), s * s])
     return FrictionModel(*np.linalg.lstsq(A, phi, rcond=None)[0])
+
+
+def friction_floor(s: float, dim: int, structure: dict, mu_min: float) -> float | None:
+    """The friction angle [deg] measured at the lowest contact friction ``mu_min``,
+    interpolated linearly in ``s`` between the points measured there (clamped at the ends), or
+    None when none was."""
+    pts = _friction_points(dim, structure)
+    if pts is None:
+        return None
+    at = np.isclose(pts[1], mu_min)
+    if not at.any():
+        return None
+    order = np.argsort(pts[0][at])
+    return float(np.interp(s, pts[0][at][order], pts[2][at][order]))
 
 
 def s_for_nu(nu: float, dim: int, structure: dict, fit: str = "elastic",
@@ -366,20 +391,19 @@ def friction_out_of_reach(targets: dict, dim: int, structure: dict, tolerances: 
                           mu_range: tuple, fit: str = "elastic") -> str | None:
     """Why the friction angle ``atan(mu_i)`` lies below what the lowest contact friction
     ``mu_range[0]`` gives elements whose spring ratio meets the target nu (:func:`s_for_nu`,
-    :func:`friction_model`, less the phi tolerance); None when above, or not charted. The
-    points were measured at the lowest mu; above them the model is not trusted (a 3-D granite at
-    mu 1.0 hardened in its confined stage instead of peaking), and a target beyond the top is
-    found out by the calibration itself."""
-    model = friction_model(dim, structure)
+    :func:`friction_floor`, less the phi tolerance); None when above, or not measured. No upper
+    bound: at the top no angle was measured (a 3-D granite at mu 1.0 and a limestone at 0.6
+    hardened in their confined stages instead of peaking), and the calibration finds a target
+    beyond it out by itself."""
     s = s_for_nu(float(targets["nu"]), dim, structure, fit)
-    if model is None or s is None:
+    lo = None if s is None else friction_floor(s, dim, structure, mu_range[0])
+    if lo is None:
         return None
     phi = math.degrees(math.atan(float(targets["mu_i"])))
-    lo = model.phi(s, mu_range[0])
     if phi >= lo - float(tolerances["phi"]):
         return None
     return (f"phi = {phi:.1f} deg (mu_i {float(targets['mu_i']):g}) is below what {dim}-D "
             f"translating elements with nu {float(targets['nu']):.2f} (ks / kn {s:.2f}) give "
-            f"at the lowest contact friction, mu {mu_range[0]:g}: about {lo:.1f} deg, fitted "
-            f"to the measured points (geodem.studies.reach.FRICTION_POINTS; "
+            f"at the lowest contact friction, mu {mu_range[0]:g}: about {lo:.1f} deg, "
+            f"interpolated between the measured points (geodem.studies.reach.FRICTION_POINTS; "
             f"docs/calibration.md, 'Friction angle in 3-D')")

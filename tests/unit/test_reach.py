@@ -194,13 +194,19 @@ ISO = {"packing": "isotropic"}
 
 
 def test_the_friction_model_follows_its_points():
-    """Least squares through the measured points: within 1.5 deg of each, and phi follows mu
+    """Least squares through the measured points: within 1 deg of each, and phi follows mu
     about three times more steeply on the sandstone's springs (ks / kn 0.30) than on the
     mudstone's (0.10): 35.5 - 16.0 deg over ln(0.343 / 0.05) against 33.2 - 28.3 over
     ln(0.217 / 0.05)."""
     m = R.friction_model(3, ISO)
     for s, mu, phi, _, _ in R.FRICTION_POINTS[3]:
-        assert m.phi(s, mu) == pytest.approx(phi, abs=1.5)
+        assert m.phi(s, mu) == pytest.approx(phi, abs=1.0)
+    # the floor is the measurements at the lowest mu, interpolated in s
+    assert R.friction_floor(0.10, 3, ISO, 0.05) == pytest.approx(28.3 + (0.10 - 0.102) / (
+        0.095 - 0.102) * (28.8 - 28.3))
+    assert R.friction_floor(0.20, 3, ISO, 0.05) == pytest.approx(
+        28.3 + (0.20 - 0.102) / (0.325 - 0.102) * (16.0 - 28.3))
+    assert R.friction_floor(0.2, 3, ISO, 0.07) is None
     assert m.slope(0.30) / m.slope(0.10) > 2.0
     assert m.phi(0.2, m.mu_for(0.2, 31.0)) == pytest.approx(31.0, abs=1e-9)
     assert R.friction_model(3, {"packing": "isotropic", "rotation": True}) is None
@@ -247,8 +253,9 @@ def test_a_friction_angle_below_the_3d_floor_is_refused_up_front(tmp_path):
 
 def test_the_3d_prior_takes_the_springs_and_friction_from_the_measurements():
     """A mudstone (nu 0.3, phi 28 deg) starts at ks / kn 0.10 and mu at the lower bound (the
-    slope table of 2-D put 0.26 and 0.22); a sandstone (nu 0.2, 35 deg) near its record's
-    mu 0.34."""
+    slope table of 2-D put 0.26 and 0.22); a sandstone (nu 0.2, 35 deg) between the
+    measured 30.0 deg at mu 0.255 and 35.5 at 0.343 (ks / kn 0.30-0.33) and the limestone's
+    41.0 at 0.43 (0.17): the chart gives nu 0.2 at ks / kn 0.26."""
     mud = C.prior_guess(CalibrationSpec(targets=_clay(28.0), dim=3, friction=True,
                                         fit="elastic", ucs_size=(0.1, 0.1, 0.2)))
     assert mud["ks_per_d"] / mud["kn_per_d"] == pytest.approx(0.10, abs=0.01)
@@ -256,4 +263,4 @@ def test_the_3d_prior_takes_the_springs_and_friction_from_the_measurements():
     sand = dict(_clay(35.0, nu=0.2), E=1.5e10, Tu=4e6, Cu=7.5e7)
     el = C.prior_guess(CalibrationSpec(targets=sand, dim=3, friction=True, fit="elastic",
                                         ucs_size=(0.1, 0.1, 0.2)))
-    assert 0.25 < el["mu"] < 0.45
+    assert 0.15 < el["mu"] < 0.40
