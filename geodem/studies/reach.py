@@ -311,6 +311,7 @@ FRICTION_POINTS = {3: (
     (0.302, 0.343, 35.5, 3, "sandstone"),
     (0.172, 0.430, 41.0, 3, "limestone"),
     (0.174, 0.384, 39.8, 3, "limestone"),
+    (0.169, 0.389, 38.7, 3, "marble"),
 )}
 #: the structure the friction points were measured on
 FRICTION_STRUCTURE = {"packing": "isotropic"}
