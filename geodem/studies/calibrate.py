@@ -324,16 +324,14 @@ def check_reachable(spec: CalibrationSpec) -> None:
 
     why = outside_region(spec.targets, spec.dim, spec.structure, spec.tolerances,
                          fit=spec.fit)
+    advice = ("Try a bond-strength scatter or a bond range (docs/calibration.md), or calibrate "
+              "anyway (--force) to match E, nu and the preferred strength")
     if not why and spec.friction:
         why = friction_out_of_reach(spec.targets, spec.dim, spec.structure, spec.tolerances,
                                     MU_RANGE, fit=spec.fit)
-        if why:
-            raise UnreachableTarget(f"{spec.name}: {why}. Calibrate the other four targets "
-                                    "(without --friction), or anyway (--force)")
+        advice = "Calibrate the other four targets (without --friction), or anyway (--force)"
     if why:
-        raise UnreachableTarget(f"{spec.name}: {why}. Try a bond-strength scatter or a bond "
-                                "range (docs/calibration.md), or calibrate anyway (--force) "
-                                "to match E, nu and the preferred strength")
+        raise UnreachableTarget(f"{spec.name}: {why}. {advice}")
 
 
 def prior_guess(spec: CalibrationSpec) -> dict:

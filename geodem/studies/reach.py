@@ -202,6 +202,12 @@ def _hull_points(chart: dict, tol_nu: float, tol_ratio: float, key: str = "nu") 
     return np.array(pts)
 
 
+def same_structure(structure: dict, charted: dict) -> bool:
+    """Whether the micro-structure ``structure`` (keys set to None: not given) is the one a
+    chart was measured on."""
+    return {k: v for k, v in structure.items() if v is not None} == charted
+
+
 def outside_region(targets: dict, dim: int, structure: dict, tolerances: dict,
                    chart: dict | None = None, fit: str = "window") -> str | None:
     """Why ``targets`` (``nu``, ``Cu``, ``Tu``) lie outside the charted region of ``dim``, with
@@ -211,8 +217,7 @@ def outside_region(targets: dict, dim: int, structure: dict, tolerances: dict,
     from scipy.spatial import Delaunay
 
     chart = shipped_chart(dim) if chart is None else chart
-    if chart is None or {k: v for k, v in structure.items() if v is not None} != \
-            chart["structure"]:
+    if chart is None or not same_structure(structure, chart["structure"]):
         return None
     tol_r = math.log1p(tolerances["Cu"] + tolerances["Tu"])
     key = NU_KEY[fit]
@@ -312,10 +317,11 @@ FRICTION_POINTS = {3: (
     (0.172, 0.430, 41.0, 3, "limestone"),
     (0.174, 0.384, 39.8, 3, "limestone"),
 )}
-#: Not in the fit, so that the prior stays the one the stored 3-D calibrations started from
-#: (a point added moves every calibration's first mu; tests/validation/
-#: test_library_calibration.py finds the marble's record again): the marble's calibration,
-#: ks / kn 0.169, 38.7 deg at mu 0.389 (three packings), 1.3 deg below the fit there.
+# Not in the points, so that the prior stays the one the stored 3-D calibrations started from
+# (a point added moves every calibration's first mu; tests/validation/
+# test_library_calibration.py finds the marble's record again): the marble's calibration,
+# ks / kn 0.169, 38.7 deg at mu 0.389 (three packings), 1.3 deg below the fit there.
+
 #: the structure the friction points were measured on
 FRICTION_STRUCTURE = {"packing": "isotropic"}
 
@@ -343,7 +349,7 @@ class FrictionModel:
 
 def _friction_points(dim: int, structure: dict):
     pts = FRICTION_POINTS.get(dim)
-    if not pts or {k: v for k, v in structure.items() if v is not None} != FRICTION_STRUCTURE:
+    if not pts or not same_structure(structure, FRICTION_STRUCTURE):
         return None
     return [np.array([p[k] for p in pts], float) for k in range(3)]
 
@@ -379,8 +385,7 @@ def s_for_nu(nu: float, dim: int, structure: dict, fit: str = "elastic",
     the ``fit`` over each charted ks / kn, interpolated; clamped to the chart), or None when no
     chart applies."""
     chart = shipped_chart(dim) if chart is None else chart
-    if chart is None or {k: v for k, v in structure.items() if v is not None} != \
-            chart["structure"]:
+    if chart is None or not same_structure(structure, chart["structure"]):
         return None
     key = NU_KEY[fit]
     by_s = {}
