@@ -133,10 +133,18 @@ PRIOR = {
 #: nu(s) = 0.265, 0.235, 0.122, 0.073, 0.028 at s = 0.50, 0.60, 0.75, 0.90, 1.10 (the
 #: prior sets s from the line through 0.60 and 0.75); phi = 35.4, 35.9, 37.8, 39.9 deg at mu
 #: = 0.15, 0.20, 0.25, 0.35 (the bonds' moment, not the contacts' friction, holds most of
-#: it), Cu x 1.14 from mu 0.15 to 0.35. 3-D: not measured, the translation prior.
+#: it), Cu x 1.14 from mu 0.15 to 0.35. 3-D, bond moment 100 and rolling stiffness 8 (the
+#: 3-D disc splits near Tu only with stiff rolling: docs/calibration.md), sandstone targets:
+#: the translation rates gave E +22.6 %, nu 0.166 at s 0.385, Cu -3.5 %, Tu -28.6 % (one
+#: packing), hence the rates below; the translating sandstone's elements turning at mu 0.05
+#: gave phi 24.7 deg (``geodem rock FILE --dim 3 --friction --bond-moment 100
+#: --rolling-stiffness 8``); the second friction point is the 3-D translating slope (about
+#: 6.5 deg per unit of ln mu), not measured on turning elements.
 PRIOR_ROTATION = {
     2: {"E": 2.75, "Tu": 4.6, "Cu": 12.8, "s_of_nu": (0.65, 0.20, -0.7), "dnu_ds": -0.7,
         "phi_of_mu": ((0.15, 35.4), (0.35, 39.9)), "dlnCu_dlnmu": 0.15},
+    3: {"E": 2.2, "Tu": 5.0, "Cu": 6.7, "s_of_nu": (0.385, 0.166, -0.8),
+        "phi_of_mu": ((0.05, 24.7), (0.30, 36.3)), "dlnCu_dlnmu": 0.4},
 }
 
 

@@ -303,8 +303,14 @@ def test_turning_elements_take_the_rotation_prior():
     mud = dict(TARGETS, mu_i=math.tan(math.radians(28.0)))
     assert C.prior_guess(C.CalibrationSpec(targets=mud, structure=rot, friction=True))["mu"] \
         == pytest.approx(C.MU_RANGE[0])
-    # 3-D has no rotation table yet: the translation prior
-    assert C.prior_table(3, rot) == C.PRIOR[3]
+    # 3-D: its own rotation rates over the translation table's slopes
+    table3 = C.prior_table(3, rot)
+    assert table3["E"] == C.PRIOR_ROTATION[3]["E"] and table3["dlnE_ds"] == C.PRIOR[3]["dlnE_ds"]
+    s0, nu0, slope = C.PRIOR_ROTATION[3]["s_of_nu"]
+    turning3 = C.prior_guess(C.CalibrationSpec(targets=dict(TARGETS, nu=0.2), structure=rot,
+                                               dim=3, d_mean=0.01, ucs_size=(0.1, 0.1, 0.2)))
+    assert turning3["ks_per_d"] / turning3["kn_per_d"] == pytest.approx(
+        s0 + (0.2 - nu0) / slope, rel=1e-9)  # 0.3425: the sandstone's first step, taken
 
 
 def test_several_packings_calibrate_their_mean(tmp_path):
