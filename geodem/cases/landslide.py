@@ -73,6 +73,7 @@ from pydantic import model_validator
 
 from geodem.workflow.models import ROOT, BuildError, BuiltModel, element_params, \
     resolve_path, state_bytes_per_element
+from geodem.workflow.scene import CoarsenSpec  # noqa: F401 - the landslide model's field
 from geodem.workflow.schema import F, Int, ModelBase, Name, StepBase, Strict, register_model, \
     register_step
 
@@ -189,23 +190,6 @@ def _box(b) -> str:
 
 
 # ============================================================================ model
-class CoarsenSpec(Strict):
-    """Graded model (docs/graded.md): fine elements (diameter d) in a band along the ground
-    surface and around the slide body, coarser ones (up to factor x d) in the deep ground,
-    with a linear transition (:func:`geodem.geo.terrain.band_size_field`,
-    :mod:`geodem.build.graded`)."""
-
-    factor: float = F(2.0, ge=1.0, le=4.0,
-                      description="Diameter of the coarsest elements / d (1: a uniform "
-                                  "packing built the graded way)")
-    band: float = F(9.0, unit="m", gt=0, le=1e4,
-                    description="Fine elements down to this depth below the ground surface "
-                                "and below the sliding surface (at least one d)")
-    transition: float = F(15.0, unit="m", ge=0, le=1e4,
-                          description="Depth over which the diameter grows linearly from d "
-                                      "to factor x d below the fine band (0: a step)")
-
-
 @register_model("landslide")
 class Landslide(ModelBase):
     """The ground under an elevation raster as a bonded random packing (2-D section or 3-D

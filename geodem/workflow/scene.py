@@ -19,7 +19,11 @@ hold no element: a cavity drawn on the image).
 
 Under a terrain domain a region or group may be a ``surface``: the side of a layer boundary
 given as an elevation raster, or of a depth below the ground (a constant, or a raster of
-depths, e.g. a sliding surface), rasters read onto the terrain raster's grid.
+depths, e.g. a sliding surface), rasters read onto the terrain raster's grid. A terrain
+scene's random fill may be **graded** (``coarsen``): fine elements (diameter d) in a band along
+the ground and below the surfaces of its surface regions (a sliding surface, a weak layer),
+coarser ones (up to ``factor`` d) in the deep ground, each element with its material's
+parameters at its own nominal diameter (docs/graded.md).
 
 Not built yet: an interface material, several materials in one specimen fill.
 """
@@ -327,6 +331,35 @@ class SceneGroup(Strict):
         return [self.side] if isinstance(self.side, str) else list(self.side)
 
 
+class CoarsenSpec(Strict):
+    """Graded model (docs/graded.md): fine elements (diameter d) in a band along the ground
+    surface and around the slide body, coarser ones (up to factor x d) in the deep ground,
+    with a linear transition (:func:`geodem.geo.terrain.band_size_field`,
+    :mod:`geodem.build.graded`)."""
+
+    factor: float = F(2.0, ge=1.0, le=4.0,
+                      description="Diameter of the coarsest elements / d (1: a uniform "
+                                  "packing built the graded way)")
+    band: float = F(9.0, unit="m", gt=0, le=1e4,
+                    description="Fine elements down to this depth below the ground surface "
+                                "and below the sliding surface (at least one d)")
+    transition: float = F(15.0, unit="m", ge=0, le=1e4,
+                          description="Depth over which the diameter grows linearly from d "
+                                      "to factor x d below the fine band (0: a step)")
+
+
+class SceneCoarsen(CoarsenSpec):
+    """Graded random fill of a terrain scene (docs/graded.md): fine elements (diameter d) from
+    2 d above the ground down to ``band`` below it and ``band`` below the surfaces of the
+    surface regions named in ``around``, the diameter growing linearly to ``factor`` d over
+    ``transition`` below that (:func:`geodem.geo.terrain.band_size_field`,
+    :mod:`geodem.build.graded`)."""
+
+    around: Optional[list[Name]] = F(None, description="Regions with a surface shape whose "
+                                                       "surface gets a fine band below it "
+                                                       "(default: every such region)")
+
+
 @register_model("scene")
 class Scene(ModelBase):
     """A domain filled with a lattice, a random packing or the material's specimen packing,
@@ -384,6 +417,9 @@ class Scene(ModelBase):
                                        description="Gravity vector (dim components)")
     groups: dict[Name, SceneGroup] = F({}, description="Named element groups")
     sort: bool = F(True, description="Reorder elements in Morton order (faster runs)")
+    coarsen: Optional[SceneCoarsen] = F(None, description="Terrain domain, random fill: a "
+                                                          "graded packing, coarser in the "
+                                                          "deep ground (default off)")
 
     def _terrain(self):
         """The :class:`~geodem.geo.terrain.TerrainModel` of a terrain domain (cached)."""
@@ -433,7 +469,13 @@ class Scene(ModelBase):
     def n_elements(self):
         if self.domain.terrain is not None:
             try:
-                return int(len(self._terrain().x))
+                x = self._terrain().x
+                if self.coarsen is None or self.fill != "random":
+                    return int(len(x))
+                # each lattice site of size d stands for (d / d_nom)^dim elements of size
+                # d_nom; a jammed packing holds 9-15 % fewer (the landslide model's estimate)
+                size = self.diameter_field()(x)
+                return max(1, int(0.86 * np.sum((self.d / size) ** self.dim)))
             except Exception:  # noqa: BLE001 - reported by check()
                 return 0
         if self._bounds() is None or len(self._bounds()[0]) != self.dim:
@@ -549,7 +591,34 @@ class Scene(ModelBase):
                         out.append((exc.path, str(exc)))
         if self.fill == "specimen":
             out += self._specimen_problems(cfg)
+        if self.coarsen is not None:
+            out += self._coarsen_problems()
         return out + group_problems(self.groups, self.dim)
+
+    def _surface_regions(self) -> dict:
+        """``{name: region}`` of the named regions with a surface shape."""
+        return {r.name: r for r in self.regions
+                if r.name and r.shape is not None and r.shape.surface is not None}
+
+    def _coarsen_problems(self):
+        """A graded fill: a random fill of a terrain domain, a band of at least one d, and
+        surface regions to refine around."""
+        c, out = self.coarsen, []
+        if self.fill != "random" or self.domain.terrain is None:
+            out.append((("coarsen",), f"a graded fill is a random fill of a terrain domain; "
+                                      f"allowed here (fill: {self.fill}, "
+                                      f"{'terrain' if self.domain.terrain else 'no terrain'}"
+                                      f" domain): none"))
+        if c.band < self.d:
+            out.append((("coarsen", "band"), f"{c.band:g} m is thinner than one element "
+                                             f"(d = {self.d:g} m); allowed: >= {self.d:g}"))
+        known = self._surface_regions()
+        for k, name in enumerate(c.around or []):
+            if name not in known:
+                out.append((("coarsen", "around", k), f"no region named {name!r} with a "
+                                                      f"surface shape; allowed: "
+                                                      f"{', '.join(known) or 'none'}"))
+        return out
 
     def _specimen_problems(self, cfg):
         """A specimen fill packs and cements one material in a box, polygon or disc domain."""
@@ -641,8 +710,11 @@ class Scene(ModelBase):
             st, region, more = self._specimen_fill(cfg, lo, hi)
             info.update(more)
         else:
+            d_nom = None
             if self.fill == "random":
-                x, radius = self._random_fill(cfg, lo, hi)
+                x, radius, d_nom, graded = self._random_fill(cfg, lo, hi)
+                if graded is not None:
+                    info["graded"] = graded
             elif self.domain.terrain is not None:
                 x = np.array(self._terrain().x, float)  # local: (along the line, z) or (x, y, z)
             else:
@@ -659,9 +731,11 @@ class Scene(ModelBase):
             x, region = x[keep], region[keep]
             if np.ndim(radius):
                 radius = radius[keep]
+            if d_nom is not None:
+                d_nom = d_nom[keep]
             if len(x) == 0:
                 raise BuildError(("regions",), "every element lies in an empty region")
-            st = self._bond(cfg, x, radius, region)
+            st = self._bond(cfg, x, radius, region, d_nom)
             if self.elements == "elastic":
                 info["medium"] = {k: v for k, v in self.medium(cfg).items() if k != "element"}
             halve_side_masses(st, self.half_mass, d)
@@ -672,7 +746,7 @@ class Scene(ModelBase):
         if self.interfaces == "bonded" and self.interface_strength != 1.0:
             info["interface_bonds_weakened"] = weaken_interfaces(st, region,
                                                                  self.interface_strength)
-        self._add_groups(st, region)
+        self._add_groups(st, region, None if self.fill == "specimen" else d_nom)
         if self.sort:
             spatial_sort(st)
         labels = ["default"] + [n or f"region {k}" for k, (n, _, _) in enumerate(slots)]
@@ -741,9 +815,12 @@ class Scene(ModelBase):
 
         return elastic_medium(cfg, name or self.material, self.d, self.dim, path)
 
-    def _bond(self, cfg, x, radius, region):
+    def _bond(self, cfg, x, radius, region, d_nom=None):
         """The bonded state of element centres ``x`` (radius ``radius``), each with its region's
-        element parameters (:func:`~geodem.build.lattice.bonded_state`)."""
+        element parameters (:func:`~geodem.build.lattice.bonded_state`), given for diameter d
+        and, in a graded fill, taken to each element's nominal diameter ``d_nom``
+        (:data:`geodem.build.graded.SIZE_LAW`: kn, ks, xb ~ d, fs0 ~ d^2, mass ~ d^3)."""
+        from geodem.build.graded import SIZE_LAW
         from geodem.build.lattice import bonded_state
 
         d = self.d
@@ -758,13 +835,18 @@ class Scene(ModelBase):
                       for k, name in enumerate(mats) if name is not None}
         per = {key: np.array([params[int(k)][key] for k in region], float)
                for key in ("kn", "ks", "xb", "fs0", "mu", "rho")}
+        size = np.ones(len(x)) if d_nom is None else np.asarray(d_nom, float) / d
+        for key in per:
+            if key in SIZE_LAW:
+                per[key] *= size ** SIZE_LAW[key]
         thick = d if self.elements == "elastic" and self.dim == 2 else None
         st = bonded_state(x, radius, density=per["rho"], kn=per["kn"], ks=per["ks"],
                           xb=per["xb"], fs0=per["fs0"], mu=per["mu"], gap=1e-6 * d,
                           thickness=thick)
         for k in params:
             if params[k]["mass"] is not None:
-                st.m[region == k] = params[k]["mass"]
+                at = region == k
+                st.m[at] = params[k]["mass"] * size[at] ** SIZE_LAW["mass"]
         return st
 
     def _specimen_fill(self, cfg, lo, hi):
@@ -807,11 +889,16 @@ class Scene(ModelBase):
 
     def _random_fill(self, cfg, lo, hi):
         """A random packing of the domain's bounding box (random placement, then deposition
-        under gravity: :mod:`geodem.build.packing`), cut by the domain (a terrain: by
-        :func:`~geodem.geo.terrain.terrain_model` on the packing); returns ``(x, r)``."""
+        under gravity: :mod:`geodem.build.packing`; with ``coarsen`` a graded packing:
+        :meth:`_graded_fill`), cut by the domain (a terrain: by
+        :func:`~geodem.geo.terrain.terrain_model` on the packing); returns ``(x, r, d_nom,
+        graded)``: centres, radii, each element's nominal diameter and the graded packing's
+        report (both None without ``coarsen``)."""
         from geodem.build import packing
         from geodem.core import groups as grp
 
+        if self.coarsen is not None:
+            return self._graded_fill(cfg, lo, hi)
         d, dim = self.d, self.dim
         lo = np.asarray(lo, float)
         hi = np.asarray(hi, float) + np.r_[np.zeros(dim - 1), 2.0 * d]  # it settles lower
@@ -826,11 +913,58 @@ class Scene(ModelBase):
         px, pr = dep.x[s] + lo, dep.r[s].copy()
         if self.domain.terrain is not None:
             tm = _terrain_model(self._terrain_key(), packing=(px, pr))
-            return np.array(tm.x, float), np.array(tm.r, float)
+            return np.array(tm.x, float), np.array(tm.r, float), None, None
         lo0, hi0 = self._bounds()
         keep = self.domain.mask(px) & np.all((px - pr[:, None] >= lo0 - 1e-9 * d)
                                              & (px + pr[:, None] <= hi0 + 1e-9 * d), axis=1)
-        return px[keep], pr[keep]
+        return px[keep], pr[keep], None, None
+
+    def _graded_fill(self, cfg, lo, hi):
+        """The graded packing of a terrain scene's bounding box
+        (:func:`~geodem.build.graded.graded_packing` on :meth:`diameter_field`),
+        cut by the ground; returns ``(x, r, d_nom, report)`` (the report: the counts of fine,
+        transition and coarse elements, the largest nominal diameter and the packing's own)."""
+        from geodem.build.graded import graded_packing
+
+        c, d = self.coarsen, self.d
+        seed = int(cfg.metadata.seed or 0)
+        try:
+            px, pr, dn, rep = graded_packing(np.asarray(lo, float), np.asarray(hi, float),
+                                             self.diameter_field(), d, self.distri_rate, seed=seed)
+        except ValueError as exc:
+            raise BuildError(("coarsen",), str(exc)) from None
+        tm = _terrain_model(self._terrain_key(), packing=(px, pr))
+        dk = dn[tm.info["packing_index"]]
+        fine = dk <= d * rep["scale"] * (1.0 + 1e-9)
+        coarse = (dk >= c.factor * d * rep["scale"] * (1.0 - 1e-9)) & ~fine
+        report = {"factor": c.factor, "band": c.band, "transition": c.transition,
+                  "around": list(self._refined_surfaces()), "fine": int(fine.sum()),
+                  "transition_elements": int((~fine & ~coarse).sum()),
+                  "coarse": int(coarse.sum()), "d_nom_max": float(dk.max()),
+                  **{f"packing_{k}": v for k, v in rep.items()}}
+        return np.array(tm.x, float), np.array(tm.r, float), dk, report
+
+    def _refined_surfaces(self) -> dict:
+        """``{name: SceneSurface}`` of the surfaces a graded fill refines below."""
+        regions = self._surface_regions()
+        names = list(regions) if self.coarsen.around is None else self.coarsen.around
+        return {n: regions[n].shape.surface for n in names}
+
+    def diameter_field(self):
+        """The graded fill's nominal diameter ``size(x (N, dim)) -> (N,)`` [m]: fine (d) from
+        2 d above the ground to ``band`` below it and below the refined surfaces, then growing
+        linearly to ``factor`` d over ``transition`` (:func:`geodem.geo.terrain.band_size_field`,
+        its sliding surface the lowest of the refined surfaces)."""
+        from geodem.geo.terrain import band_size_field
+
+        c, frame = self.coarsen, self.frame()
+        surfaces = list(self._refined_surfaces().values())
+        lowest = None
+        if surfaces:
+            def lowest(xy):
+                return np.min([sf.elevation(xy, frame) for sf in surfaces], axis=0)
+        return band_size_field(frame.top, self.d, c.factor, c.band, c.transition,
+                               sliding_surface=lowest, line=frame.line)
 
     def region_ids(self, x) -> np.ndarray:
         """Region index per element (the last region wins): 0 for none, k + 1 for
@@ -855,17 +989,20 @@ class Scene(ModelBase):
             first += len(r.image.colours)
         return region
 
-    def _add_groups(self, st, region):
+    def _add_groups(self, st, region, d_nom=None):
+        """The named groups; a side slab's depth counts in each element's own nominal diameter
+        (``d_nom``, a graded fill; at least d), so a slab of coarse base elements is whole."""
         from geodem.core import groups as grp
 
         lo, hi = st.x.min(axis=0), st.x.max(axis=0)
+        own = self.d if d_nom is None else np.maximum(np.asarray(d_nom, float), self.d)
         names = {n: k + 1 for k, (n, _, _) in enumerate(self.slots()) if n is not None}
         for name, g in self.groups.items():
             if g.side is not None:
                 sel = np.zeros(st.n, bool)
                 for side in g.sides():
                     ax = DOF_NAMES.index(side[0])
-                    depth = g.depth * self.d
+                    depth = g.depth * own
                     sel |= (st.x[:, ax] <= lo[ax] + depth - 1e-9 * self.d
                             if side.endswith("min") else
                             st.x[:, ax] >= hi[ax] - depth + 1e-9 * self.d)

@@ -115,3 +115,65 @@ def test_composed_landslide_gives_the_landslide_models_results(tmp_path):
     assert scene["com_ratio"] == pytest.approx(model["com_ratio"], rel=0.15)
     assert scene["travel_angle_deg"] == pytest.approx(model["travel_angle_deg"], abs=4.0)
     assert scene["runout_m"] == pytest.approx(model["runout_m"], rel=0.35)
+
+
+# graded fill (model.coarsen): the hill at d = 5 m, coarse elements up to 2 d below a 10 m fine
+# band along the ground and under the sliding surface, 15 m of transition
+GRADED = ["model.d=5.0", "model.coarsen.factor=2", "model.coarsen.band=10",
+          "model.coarsen.transition=15"]
+
+
+@pytest.fixture(scope="module")
+def graded():
+    from geodem.workflow import prepare
+
+    return prepare(WF, sets=GRADED)
+
+
+def test_graded_scene_is_fine_along_the_ground_and_the_slide_and_coarse_below(graded):
+    st, info = graded.built.state, graded.built.info
+    g, d = info["graded"], 5.0
+    assert g["around"] == ["slide"] and g["fine"] + g["transition_elements"] + g["coarse"] == st.n
+    assert g["coarse"] > 0.15 * st.n and g["fine"] > 0.4 * st.n
+    # the planner's estimate (advise, memory) within 15 % of the built count
+    assert graded.cfg.model.n_elements() == pytest.approx(st.n, rel=0.15)
+    size = st.kn / st.kn.min()  # nominal diameter / the finest (kn ~ d)
+    assert size.max() == pytest.approx(2.0, rel=0.02)
+    assert np.allclose(size[st.group == st.groups["slide"]], 1.0)
+    prof = info["profile"]
+    top = np.interp(st.x[:, 0], prof["s"], prof["top"])
+    slip = np.interp(st.x[:, 0], prof["s"], prof["surfaces"]["slide"])
+    near = top - st.x[:, 1] < 10.0 - d  # inside the fine band by one d
+    assert np.mean(np.isclose(size[near], 1.0, rtol=1e-6)) > 0.97
+    deep = np.minimum(top - 10.0, slip - 10.0) - st.x[:, 1] > 15.0 + d  # past the transition
+    assert deep.sum() > 30 and np.mean(np.isclose(size[deep], 2.0, rtol=1e-6)) > 0.97
+
+
+def test_graded_scene_parameters_follow_each_elements_size(graded):
+    st = graded.built.state
+    s = st.kn / st.kn.min()
+    # rock: kn_per_d 6.667e8, ks_per_d 2.667e8, xb_per_d 0.01667, fs0_per_d2 3.333e7 at d = 5 m
+    # (x the packing's common scale, ~1)
+    assert st.kn.min() == pytest.approx(6.667e8 * 5.0, rel=0.03)
+    assert np.allclose(st.ks / st.ks.min(), s) and np.allclose(st.xb / st.xb.min(), s)
+    assert np.allclose(st.fs0 / st.fs0.min(), s ** 2)
+    # 2-D discs as thick as wide: m = rho pi r^2 2r
+    assert np.allclose(st.m, 2500.0 * np.pi * st.r ** 2 * 2 * st.r)
+    # the base slab is two of each element's own diameters deep: the coarse bottom row whole
+    base, d = st.group == st.groups["base"], 5.0
+    low = st.x[:, 1] < (st.x[:, 1] - st.r).min() + 1.5 * d  # centres on the bottom
+    assert base[low].all() and (st.x[base, 1] - st.x[:, 1].min()).max() > 2 * d
+
+
+@pytest.mark.parametrize("sets, field", [
+    (["model.fill=lattice"], "model.coarsen"),
+    (["model.coarsen.band=1.0"], "model.coarsen.band"),
+    (["model.coarsen.around=[scarp]"], "model.coarsen.around[0]"),
+])
+def test_graded_scene_bad_input_exits_2_naming_the_field(tmp_path, sets, field):
+    args = ["validate", str(WF)]
+    for s in GRADED + sets:
+        args += ["--set", s]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2, res.output
+    assert field in res.output, res.output
