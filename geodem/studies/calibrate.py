@@ -134,17 +134,19 @@ PRIOR = {
 #: prior sets s from the line through 0.60 and 0.75); phi = 35.4, 35.9, 37.8, 39.9 deg at mu
 #: = 0.15, 0.20, 0.25, 0.35 (the bonds' moment, not the contacts' friction, holds most of
 #: it), Cu x 1.14 from mu 0.15 to 0.35. 3-D, bond moment 100 and rolling stiffness 8 (the
-#: 3-D disc splits near Tu only with stiff rolling: docs/calibration.md), sandstone targets:
-#: the translation rates gave E +22.6 %, nu 0.166 at s 0.385, Cu -3.5 %, Tu -28.6 % (one
-#: packing), hence the rates below; the translating sandstone's elements turning at mu 0.05
-#: gave phi 24.7 deg (``geodem rock FILE --dim 3 --friction --bond-moment 100
-#: --rolling-stiffness 8``); the second friction point is the 3-D translating slope (about
-#: 6.5 deg per unit of ln mu), not measured on turning elements.
+#: 3-D disc splits near Tu only with stiff rolling: docs/calibration.md): the translation rates
+#: gave E +22.6 %, Cu -3.5 %, Tu -28.6 % on the sandstone (one packing); the rates below then
+#: gave E -4.1 %, Cu -8.1 % (at mu 0.245), Tu +0.5 % (three packings), hence these; nu 0.186
+#: at ks / kn 0.343 (sandstone) and 0.303 at 0.113 (stiff clay): the line through them; phi
+#: 24.7 deg at mu 0.05 (the translating sandstone's elements turning, ``geodem rock FILE --dim
+#: 3 --friction --bond-moment 100 --rolling-stiffness 8``) and 36.6 at 0.245 (the turning
+#: sandstone's first iteration, three packings); on the stiff clay's soft springs 31.7 deg at
+#: mu 0.05 (its lowest angle: :data:`TURNING_FRICTION_FLOOR_3D`).
 PRIOR_ROTATION = {
     2: {"E": 2.75, "Tu": 4.6, "Cu": 12.8, "s_of_nu": (0.65, 0.20, -0.7), "dnu_ds": -0.7,
         "phi_of_mu": ((0.15, 35.4), (0.35, 39.9)), "dlnCu_dlnmu": 0.15},
-    3: {"E": 2.2, "Tu": 5.0, "Cu": 6.7, "s_of_nu": (0.385, 0.166, -0.8),
-        "phi_of_mu": ((0.05, 24.7), (0.30, 36.3)), "dlnCu_dlnmu": 0.4},
+    3: {"E": 2.3, "Tu": 5.0, "Cu": 7.3, "s_of_nu": (0.343, 0.186, -0.51), "dnu_ds": -0.51,
+        "phi_of_mu": ((0.05, 24.7), (0.245, 36.6)), "dlnCu_dlnmu": 0.4},
 }
 
 
