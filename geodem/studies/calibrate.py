@@ -166,8 +166,7 @@ LIBRARY_PACKINGS = 3
 LIBRARY_BETA_3D = 8.0
 #: the lowest friction angle [deg] of those elements (contact friction 0.05, one packing)
 #: against the rock's nu: the sandstone's springs 24.7 deg at nu 0.184, the stiff clay's
-#: 31.7 at nu 0.303 (32.0 at rolling stiffness 16, 31.1 with bond moment 20: neither lever
-#: lowers it); linear in nu between and beyond
+#: 31.7 at nu 0.303 (32.0 at rolling stiffness 16); linear in nu between and beyond
 TURNING_FRICTION_FLOOR_3D = ((0.184, 24.7), (0.303, 31.7))
 
 
