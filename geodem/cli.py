@@ -801,8 +801,7 @@ def calibrate_cmd(
 
     from geodem.studies.calibrate import (CalibrationSpec, UnreachableTarget, calibrate,
                                            check_reachable, library_friction_left_out,
-                                           library_recipe, library_turning_left_out,
-                                           save_calibration)
+                                           library_recipe, save_calibration)
     from geodem.materials_library import load_material, material_path
 
     if prefer not in ("Cu", "Tu"):
@@ -859,11 +858,8 @@ def calibrate_cmd(
               highlight=False)
     if recipe == "library":
         con.print(f"the library's {dim}-D recipe: {_recipe_text(spec)}", highlight=False)
-        translating = library_turning_left_out(mat.values()) if dim == 3 else None
-        if translating:
-            con.print(f"translating elements: {translating}", highlight=False)
-        left_out = library_friction_left_out(mat.values()) \
-            if translating and not friction else None
+        left_out = library_friction_left_out(mat.values()) if dim == 3 and not friction \
+            else None
         if left_out:
             con.print(f"the friction angle is not matched: {left_out}", highlight=False)
     elif stored is not None:

@@ -73,7 +73,7 @@ from geodem import threads
 from geodem.materials import macro_to_micro, per_size
 
 __all__ = ["CalibrationSpec", "UnreachableTarget", "calibrate", "check_reachable",
-           "library_recipe", "library_turning_left_out",
+           "library_recipe",
            "brazilian_check", "measure_friction", "friction_angle", "save_calibration",
            "save_brazilian_check",
            "calibration_block", "to_unknowns", "from_unknowns", "TOLERANCES"]
@@ -160,61 +160,24 @@ LIBRARY_BOND_MOMENT = 100.0
 LIBRARY_PACKINGS = 3
 
 
-#: the library's 3-D turning elements: bond moment 100 and rolling stiffness 8 (a 3-D disc of
-#: translating elements splits at 1.65-3.3 x Tu; turning at BETA 8, at 1.05-1.11 x:
-#: docs/calibration.md, "3-D Brazilian")
-LIBRARY_BETA_3D = 8.0
-#: the lowest friction angle [deg] of those elements (contact friction 0.05, one packing)
-#: against the rock's nu: the sandstone's springs 24.7 deg at nu 0.184, the stiff clay's
-#: 31.7 at nu 0.303 (32.0 at rolling stiffness 16); linear in nu between and beyond
-TURNING_FRICTION_FLOOR_3D = ((0.184, 24.7), (0.303, 31.7))
-
-
-def turning_friction_floor_3d(nu: float) -> float:
-    """The lowest friction angle [deg] the library's 3-D turning elements reach at Poisson
-    ratio ``nu`` (:data:`TURNING_FRICTION_FLOOR_3D`, linear in nu)."""
-    (n0, f0), (n1, f1) = TURNING_FRICTION_FLOOR_3D
-    return f0 + (float(nu) - n0) * (f1 - f0) / (n1 - n0)
-
-
-def library_turning_left_out(targets: dict) -> str | None:
-    """Why the 3-D library recipe takes translating elements for ``targets``: a friction angle
-    below what the turning ones reach (:func:`turning_friction_floor_3d`, less the tolerance),
-    or None."""
-    mu_i = targets.get("mu_i")
-    if not mu_i:
-        return None
-    phi, floor = friction_angle(float(mu_i)), turning_friction_floor_3d(targets["nu"])
-    if phi + TOLERANCES["phi"] >= floor:
-        return None
-    return (f"phi = {phi:.1f} deg lies below what 3-D turning elements give at nu "
-            f"{float(targets['nu']):.2f} and the lowest contact friction ({floor:.1f} deg): "
-            f"translating elements instead (their Brazilian disc splits above Tu)")
-
-
 def library_recipe(dim: int, targets: dict) -> tuple[dict, bool, int]:
     """The library's recipe for a rock with ``targets`` (``mu_i`` the tangent of its friction
     angle): ``(structure, friction, packings)``. 2-D: turning elements (bond moment
     :data:`LIBRARY_BOND_MOMENT`, BETA from :data:`LIBRARY_BETA_BY_PHI`), the friction angle
-    matched when ``mu_i`` is given, :data:`LIBRARY_PACKINGS` packings. 3-D: turning elements
-    (bond moment :data:`LIBRARY_BOND_MOMENT`, BETA :data:`LIBRARY_BETA_3D`) unless the friction
-    angle lies below what they reach (:func:`library_turning_left_out`); then translating
-    ones, the friction angle matched unless below what those reach
-    (:func:`library_friction_left_out`)."""
+    matched when ``mu_i`` is given, :data:`LIBRARY_PACKINGS` packings. 3-D: translating
+    elements on as many packings, the friction angle matched unless it lies below what they
+    reach (:func:`library_friction_left_out`; turning 3-D elements overshoot the angles:
+    docs/calibration.md)."""
     mu_i = targets.get("mu_i")
     if dim == 3:
-        if library_turning_left_out(targets) is None:
-            return _turning(LIBRARY_BETA_3D), bool(mu_i), LIBRARY_PACKINGS
+        structure = {"packing": "isotropic"}
         friction = bool(mu_i) and library_friction_left_out(targets) is None
-        return {"packing": "isotropic"}, friction, LIBRARY_PACKINGS
+        return structure, friction, LIBRARY_PACKINGS
     phi = math.degrees(math.atan(float(mu_i))) if mu_i else 35.0
     beta = next(b for lowest, b in LIBRARY_BETA_BY_PHI if phi >= lowest)
-    return _turning(beta), bool(mu_i), LIBRARY_PACKINGS
-
-
-def _turning(beta: float) -> dict:
-    return {"packing": "isotropic", "rotation": True, "bond_moment": LIBRARY_BOND_MOMENT,
-            "rolling_friction": 0.0, "rolling_stiffness": float(beta)}
+    structure = {"packing": "isotropic", "rotation": True, "bond_moment": LIBRARY_BOND_MOMENT,
+                 "rolling_friction": 0.0, "rolling_stiffness": beta}
+    return structure, bool(mu_i), LIBRARY_PACKINGS
 
 
 def library_friction_left_out(targets: dict) -> str | None:

@@ -399,28 +399,19 @@ def test_the_library_recipe_takes_the_rolling_stiffness_from_the_friction_angle(
     assert friction and packings == 3
 
 
-def test_the_library_recipe_in_3d_turns_the_elements_where_the_friction_angle_allows():
-    """Turning elements (bond moment 100, BETA 8: their disc splits near Tu) on three packings
-    with the friction angle matched (a sandstone's 35 deg at nu 0.2, a marble's 40 at 0.25);
-    below their lowest angle (24.7 deg at nu 0.184, 31.7 at 0.303, linear in nu) less the 2 deg
-    tolerance, translating elements: a mudstone's 28 deg at nu 0.3 (floor 31.5) with its
-    friction angle, a stiff clay's 25 (below the translating floor too, about 28.5 deg) without,
-    each with the reason."""
-    assert C.turning_friction_floor_3d(0.3) == pytest.approx(24.7 + 0.116 * 7.0 / 0.119)
-    turning = {"packing": "isotropic", "rotation": True, "bond_moment": 100.0,
-               "rolling_friction": 0.0, "rolling_stiffness": 8.0}
-    for nu, phi in ((0.2, 35.0), (0.25, 40.0), (0.25, 50.0)):
-        rock = {"nu": nu, "mu_i": math.tan(math.radians(phi))}
-        assert C.library_recipe(3, rock) == (turning, True, 3)
-        assert C.library_turning_left_out(rock) is None
+def test_the_library_recipe_in_3d_matches_the_friction_angle_where_it_can():
+    """Translating elements on three packings; the friction angle matched (a sandstone's 35
+    deg at nu 0.2, a mudstone's 28 at nu 0.3), except below the 3-D floor (a stiff clay's 25
+    deg at nu 0.3: about 28.5 deg at the lowest contact friction), which is left out with
+    the reason."""
+    sand = {"nu": 0.2, "mu_i": math.tan(math.radians(35.0))}
+    assert C.library_recipe(3, sand) == ({"packing": "isotropic"}, True, 3)
     mud = {"nu": 0.3, "mu_i": math.tan(math.radians(28.0))}
-    assert C.library_recipe(3, mud) == ({"packing": "isotropic"}, True, 3)
-    assert "31.5 deg" in C.library_turning_left_out(mud)
-    assert C.library_friction_left_out(mud) is None
+    assert C.library_recipe(3, mud)[1] and C.library_friction_left_out(mud) is None
     clay = {"nu": 0.3, "mu_i": math.tan(math.radians(25.0))}
     assert C.library_recipe(3, clay) == ({"packing": "isotropic"}, False, 3)
     assert "below" in C.library_friction_left_out(clay)
-    assert C.library_recipe(3, {"nu": 0.3, "mu_i": None}) == (turning, False, 3)
+    assert not C.library_recipe(3, {"nu": 0.3, "mu_i": None})[1]
 
 
 def test_without_a_friction_angle_the_recipe_does_not_match_one():
