@@ -141,7 +141,7 @@ PRIOR = {
 #: 24.7 deg at mu 0.05 (the translating sandstone's elements turning, ``geodem rock FILE --dim
 #: 3 --friction --bond-moment 100 --rolling-stiffness 8``) and 36.6 at 0.245 (the turning
 #: sandstone's first iteration, three packings); on the stiff clay's soft springs 31.7 deg at
-#: mu 0.05 (its lowest angle: :data:`TURNING_FRICTION_FLOOR_3D`).
+#: mu 0.05 (its lowest angle; docs/calibration.md "Friction angle in 3-D").
 PRIOR_ROTATION = {
     2: {"E": 2.75, "Tu": 4.6, "Cu": 12.8, "s_of_nu": (0.65, 0.20, -0.7), "dnu_ds": -0.7,
         "phi_of_mu": ((0.15, 35.4), (0.35, 39.9)), "dlnCu_dlnmu": 0.15},
