@@ -706,11 +706,11 @@ class Scene(ModelBase):
         radius = 0.5 * d
         info = {"d": d, "diameter": d, "domain_min": [float(v) for v in lo],
                 "domain_max": [float(v) for v in hi]}
+        d_nom = None  # each element's nominal diameter: a graded fill's only
         if self.fill == "specimen":
             st, region, more = self._specimen_fill(cfg, lo, hi)
             info.update(more)
         else:
-            d_nom = None
             if self.fill == "random":
                 x, radius, d_nom, graded = self._random_fill(cfg, lo, hi)
                 if graded is not None:
@@ -746,7 +746,7 @@ class Scene(ModelBase):
         if self.interfaces == "bonded" and self.interface_strength != 1.0:
             info["interface_bonds_weakened"] = weaken_interfaces(st, region,
                                                                  self.interface_strength)
-        self._add_groups(st, region, None if self.fill == "specimen" else d_nom)
+        self._add_groups(st, region, d_nom)
         if self.sort:
             spatial_sort(st)
         labels = ["default"] + [n or f"region {k}" for k, (n, _, _) in enumerate(slots)]
