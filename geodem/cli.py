@@ -795,6 +795,11 @@ def calibrate_cmd(
                          "angle, the friction angle matched on three packings; 3-D: "
                          "translating elements, four targets), for a rock of your own; the "
                          "other recipe options then change it (docs/calibration.md).")] = None,
+    start: Annotated[Optional[str], typer.Option(
+        "--start", help="Start from the element parameters (kn_per_d, ks_per_d, xb_per_d, "
+                        "fs0_per_d2, mu) of this YAML file: an earlier run's calibrated.yaml "
+                        "or a material file with a --dim record (edit mu there to start the "
+                        "friction elsewhere); default: the prior rates.")] = None,
     backend: Annotated[Optional[str], typer.Option(
         "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
 ):
@@ -811,6 +816,7 @@ def calibrate_cmd(
     _check_fit(fit)
     mat = load_material(material)
     path = material_path(material)
+    first = _start_element(start, dim) if start else None
     o = _fresh_out_dir(out, overwrite)
     if dim == 3:
         size = (0.1, 0.1, 0.2)
@@ -874,7 +880,7 @@ def calibrate_cmd(
                   f"Tu {m['Tu']:.4g} Pa ({e['Tu']:+.1%}){_phi_text(rec)}; "
                   f"{rec['wall_time_s']:.0f} s", highlight=False)
 
-    summary = calibrate(spec, o, progress=report)
+    summary = calibrate(spec, o, progress=report, start=first)
     b = summary["brazilian"]
     off = b["crack_start_offset"]
     con.print(f"check: Brazilian disc {b['tensile_strength']:.4g} Pa = {b['over_target']:.3g} x "
@@ -890,6 +896,39 @@ def calibrate_cmd(
         con.print(f"saved the {dim}-D calibration into {path}", highlight=False)
     if not summary["converged"]:
         raise typer.Exit(FAILURE)
+
+
+def _start_element(path: str, dim: int) -> dict:
+    """The element parameters to start a calibration from: ``<dim>d.element`` of a
+    calibrated.yaml or ``calibrated.<dim>d.element`` of a material file; exit 2 with the file
+    and field when missing or not positive."""
+    from pathlib import Path
+
+    import yaml
+
+    from geodem.studies.calibrate import from_unknowns, to_unknowns
+
+    p = Path(path)
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        _fail(f"--start {path}: cannot read it: {exc}", USER_ERROR)
+    key = f"{dim}d"
+    rec = (doc or {}).get(key) or ((doc or {}).get("calibrated") or {}).get(key)
+    if not isinstance(rec, dict) or not isinstance(rec.get("element"), dict):
+        _fail(f"--start {path}: no '{key}.element' (calibrated.yaml) or "
+              f"'calibrated.{key}.element' (material file) for --dim {dim}", USER_ERROR)
+    el, values = rec["element"], {}
+    for name in ("kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2", "mu"):
+        v = el.get(name)
+        try:  # YAML reads 1.0e11 (no sign in the exponent) as a string
+            values[name] = float(v) if not isinstance(v, bool) else math.nan
+        except (TypeError, ValueError):
+            values[name] = math.nan
+        if not values[name] > 0 or math.isinf(values[name]):
+            _fail(f"{path}: field '{key}.element.{name}' = {v!r}: allowed: a number > 0",
+                  USER_ERROR)
+    return from_unknowns(to_unknowns(values))
 
 
 @app.command("rock", help=(

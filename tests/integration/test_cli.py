@@ -298,3 +298,30 @@ def test_an_unknown_fit_is_a_user_error(tmp_path, cmd):
     assert res.exit_code == 2
     assert "--fit 'x': allowed: window or elastic" in res.output
     assert not (tmp_path / "o").exists()
+
+
+def test_calibrate_start_file_errors_name_the_field_and_write_nothing(tmp_path):
+    bad = tmp_path / "start.yaml"
+    bad.write_text("3d:\n  element:\n    kn_per_d: 1.0e11\n    mu: -0.2\n")
+    res = invoke("calibrate", "marble", "--dim", "3", "--start", str(bad),
+                 "-o", str(tmp_path / "c"))
+    assert res.exit_code == 2, res.output
+    assert "'3d.element.ks_per_d' = None: allowed: a number > 0" in flat(res.output)
+    res = invoke("calibrate", "marble", "--start", str(bad), "-o", str(tmp_path / "c"))
+    assert res.exit_code == 2 and "no '2d.element'" in flat(res.output)
+    assert not (tmp_path / "c").exists()
+
+
+def test_calibrate_starts_from_a_stored_record(tmp_path):
+    """--start with a material file: the first iteration runs the record's elements."""
+    import yaml
+
+    path = ROOT / "materials" / "sandstone.yaml"
+    el = yaml.safe_load(path.read_text())["calibrated"]["2d"]["element"]
+    res = invoke("calibrate", "sandstone", "--start", str(path), "--iterations", "1",
+                 "--d-mean", "0.02", "--no-friction", "--packings", "1",
+                 "-o", str(tmp_path / "c"))
+    assert res.exit_code in (0, 1), res.output
+    first = json.loads((tmp_path / "c" / "summary.json").read_text())["history"][0]["element"]
+    for key in ("kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2", "mu"):
+        assert first[key] == pytest.approx(el[key], rel=1e-12)

@@ -434,3 +434,35 @@ def test_packing_measurements_are_stored_only_when_they_reproduce_the_record(tmp
     assert [r["E"] for r in stored["measured_per_packing"]] == pytest.approx(
         [rec["E"] * f for f in (0.9, 1.0, 1.1)], rel=1e-12)
     assert stored["measured"] == rec  # the record itself untouched
+
+
+def test_an_angle_that_stays_high_gets_the_long_mu_steps(tmp_path):
+    """A friction angle that flattens at high mu (1 deg per unit ln mu above mu 0.2, 12 below)
+    and sits 3-4 deg high, inside PHI_FAR: after two such readings the calibration steps mu by
+    a factor 1.5, not 1.12, and meets the angle within five triaxial runs (with 12 % steps: six)."""
+    phi_t = 40.0
+    calls = []
+
+    def flat_then_steep(spec_, el, folder):
+        calls.append(el["mu"])
+        x = math.log(el["mu"] / 0.2)
+        phi = phi_t + 3.5 + (1.0 * x if x > 0 else 12.0 * x)
+        return {"phi": phi, "peak_0": 1.0, "peak_c": 2.0, "sigma3": 0.1, "wall_time_s": 0.0}
+
+    sp = C.CalibrationSpec(targets=dict(TARGETS, mu_i=math.tan(math.radians(phi_t))),
+                           name="synthetic", friction=True, iterations=8,
+                           structure={"packing": "isotropic", "rotation": True,
+                                      "bond_moment": 100.0})
+    out = C.calibrate(sp, tmp_path, measure_fn=frictional, friction_fn=flat_then_steep)
+    assert out["converged"] and abs(out["abs_errors"]["phi"]) <= 2.0
+    assert len(calls) <= 5
+    assert min(calls[i] / calls[i + 1] for i in range(len(calls) - 1)) < 1.2
+    assert max(calls[i] / calls[i + 1] for i in range(len(calls) - 1)) == pytest.approx(1.5)
+
+
+def test_phi_stuck_needs_two_readings_off_on_one_side():
+    assert C._phi_stuck([43.9, 43.6], 40.0)
+    assert not C._phi_stuck([43.6], 40.0)
+    assert not C._phi_stuck([43.9, 41.5], 40.0)  # the latest within 2 deg
+    assert not C._phi_stuck([36.0, 43.6], 40.0)  # bracketed
+    assert not C._phi_stuck([math.nan, 43.6], 40.0)
