@@ -39,6 +39,14 @@
 
 Returns positions and radii in metres and a report; :func:`geodem.build.specimen.cement` then
 bonds the touching pairs and balances.
+
+**Large boxes** (above :data:`TILE_ABOVE` elements): jamming the whole box costs ~N^2.6 (the
+minimiser slows down near the jamming point, and more so for more elements), so a box that
+large is filled by :func:`tiled_packing`: one periodic cell of about :data:`TILE_ELEMENTS`
+elements (steps 1-2 without faces, the pairs by their nearest image; steps 3-4 with the bonds
+across the cell's boundaries) repeated over the box. The cell's cost does not grow with the
+box. The micro-structure repeats every cell side (~20 d_mean), and the box's faces cut the
+cells instead of being flat and touched.
 """
 from __future__ import annotations
 
@@ -54,6 +62,14 @@ from geodem.threads import single_threaded_blas
 __all__ = ["bond_network", "isotropic_packing", "jam", "stress_free", "stress_free_network"]
 
 PHI_START = 0.3
+#: above this many elements :func:`isotropic_packing` repeats a periodic cell of about
+#: TILE_ELEMENTS elements over the box (the whole box jammed at once costs ~N^2.6:
+#: docs/performance.md, "Cost against model size"); below, the box is jammed whole, as the lab
+#: specimens always were
+TILE_ABOVE = 20_000
+TILE_ELEMENTS = 8_000
+#: FIRE iterations of one growth step of a periodic cell (:func:`jam`)
+GROWTH_CAP = 30_000
 PHI_BULK = 0.635  # random close packing of the default size spread (measured: 0.639)
 PHI_BULK_2D = 0.84  # random close packing of discs of the default size spread
 WALL_DEFICIT = 0.15
@@ -66,28 +82,35 @@ DEFAULT_PRESTRESS = 1e-6
 
 # ============================================================================ kernels (reduced)
 @njit(cache=True, fastmath=True)
-def _forces(x, r, pi, pj, lo, hi, f):
+def _forces(x, r, pi, pj, lo, hi, f, period):
     """Harmonic repulsion (k = 1) between the candidate pairs and against the six planar faces
-    of ``[lo, hi]``; writes the net forces into ``f``, returns the energy."""
+    of ``[lo, hi]``, or, with ``period[0] > 0``, in the periodic cell ``[0, period)`` (pairs by
+    their nearest image, no faces); writes the net forces into ``f``, returns the energy."""
     n, dim = x.shape
+    periodic = period[0] > 0.0
     f[:] = 0.0
     e = 0.0
+    t = np.empty(dim)
     for k in range(pi.size):
         i = pi[k]
         j = pj[k]
         d2 = 0.0
         for c in range(dim):
-            t = x[j, c] - x[i, c]
-            d2 += t * t
+            t[c] = x[j, c] - x[i, c]
+            if periodic:
+                t[c] -= period[c] * np.floor(t[c] / period[c] + 0.5)
+            d2 += t[c] * t[c]
         s = r[i] + r[j]
         if d2 < s * s:
             d = math.sqrt(d2)
             ov = s - d
             e += 0.5 * ov * ov
             for c in range(dim):
-                fc = ov * (x[j, c] - x[i, c]) / d
+                fc = ov * t[c] / d
                 f[i, c] -= fc
                 f[j, c] += fc
+    if periodic:
+        return e
     for i in range(n):
         for c in range(dim):
             ov = r[i] - (x[i, c] - lo[c])
@@ -102,14 +125,15 @@ def _forces(x, r, pi, pj, lo, hi, f):
 
 
 @njit(cache=True, fastmath=True)
-def _fire(x, v, r, pi, pj, lo, hi, x0, half_skin, ftol, emin, max_iter, dt, dt_max):
+def _fire(x, v, r, pi, pj, lo, hi, x0, half_skin, ftol, emin, max_iter, dt, dt_max, period):
     """FIRE minimisation (unit masses). Returns ``(status, iterations, dt, energy)``; status 0:
     largest net force below ``ftol``; 1: energy below ``emin`` (no contact left: unjammed);
     2: an element moved more than ``half_skin`` since the pair list was built (rebuild and
-    call again); 3: ``max_iter`` reached."""
+    call again); 3: ``max_iter`` reached. ``period``: the periodic cell's lengths (then no
+    faces), or zeros (the box ``[lo, hi]`` with its faces)."""
     n, dim = x.shape
     f = np.zeros_like(x)
-    e = _forces(x, r, pi, pj, lo, hi, f)
+    e = _forces(x, r, pi, pj, lo, hi, f, period)
     alpha = 0.1
     npos = 0
     for it in range(max_iter):
@@ -159,51 +183,73 @@ def _fire(x, v, r, pi, pj, lo, hi, x0, half_skin, ftol, emin, max_iter, dt, dt_m
             dmax2 = max(dmax2, d2)
         if dmax2 > half_skin * half_skin:
             return 2, it + 1, dt, e
-        e = _forces(x, r, pi, pj, lo, hi, f)
+        e = _forces(x, r, pi, pj, lo, hi, f, period)
     return 3, max_iter, dt, e
 
 
-def _pairs(x, r, reach):
-    """Candidate pairs with surface gap below ``reach`` (``i < j``, int64)."""
+def _pairs(x, r, reach, period=None):
+    """Candidate pairs with surface gap below ``reach`` (``i < j``, int64); in the periodic
+    cell ``[0, period)`` by the nearest image."""
     from scipy.spatial import cKDTree
 
-    p = cKDTree(x).query_pairs(2.0 * float(r.max()) + reach, output_type="ndarray")
+    tree = cKDTree(x) if period is None else cKDTree(_wrap(x, period), boxsize=period)
+    p = tree.query_pairs(2.0 * float(r.max()) + reach, output_type="ndarray")
     if len(p) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    d = np.linalg.norm(x[p[:, 1]] - x[p[:, 0]], axis=1)
+    d = np.linalg.norm(_separation(x, p[:, 0], p[:, 1], period), axis=1)
     keep = d < r[p[:, 0]] + r[p[:, 1]] + reach
     return p[keep, 0].astype(np.int64), p[keep, 1].astype(np.int64)
 
 
-def _minimise(x, r, lo, hi, ftol, emin, max_iter=200000):
-    """FIRE to ``ftol`` from rest (pair list rebuilt as needed). Returns ``(status, iters)``."""
+def _wrap(x, period):
+    """Centres moved into the periodic cell ``[0, period)`` (a round-off ``period`` -> 0)."""
+    w = np.mod(x, period)
+    return np.where(w >= period, 0.0, w)
+
+
+def _separation(x, i, j, period=None):
+    """``x[j] - x[i]``; in the periodic cell ``[0, period)`` the nearest image's."""
+    d = x[j] - x[i]
+    if period is not None:
+        d -= period * np.floor(d / period + 0.5)
+    return d
+
+
+def _minimise(x, r, lo, hi, ftol, emin, max_iter=200000, period=None):
+    """FIRE to ``ftol`` from rest (pair list rebuilt as needed); ``period``: a periodic cell
+    instead of the box's faces. Returns ``(status, iters)``."""
     v = np.zeros_like(x)
     dt = 0.05
     total = 0
+    cell = np.zeros(x.shape[1]) if period is None else np.asarray(period, float)
     while True:
-        pi, pj = _pairs(x, r, SKIN)
+        pi, pj = _pairs(x, r, SKIN, period)
         st, it, dt, _ = _fire(x, v, r, pi, pj, lo, hi, x.copy(), 0.5 * SKIN, ftol, emin,
-                              max_iter - total, dt, 0.2)
+                              max_iter - total, dt, 0.2, cell)
         total += it
         if st != 2:
             return st, total
 
 
-def _contacts(x, r, lo, hi):
-    """Overlaps of the touching pairs and element-face contacts (positive values)."""
-    pi, pj = _pairs(x, r, 0.0)
-    ov = r[pi] + r[pj] - np.linalg.norm(x[pj] - x[pi], axis=1)
+def _contacts(x, r, lo, hi, period=None):
+    """Overlaps of the touching pairs and element-face contacts (positive values); in a
+    periodic cell (``period``) the pairs'."""
+    pi, pj = _pairs(x, r, 0.0, period)
+    ov = r[pi] + r[pj] - np.linalg.norm(_separation(x, pi, pj, period), axis=1)
+    if period is not None:
+        return ov[ov > 0]
     w = np.concatenate([r[:, None] - (x - lo), r[:, None] - (hi - x)], axis=1).ravel()
     return np.concatenate([ov[ov > 0], w[w > 0]])
 
 
-def _load(x, r, lo, hi):
+def _load(x, r, lo, hi, period=None):
     """Summed overlap of the contacts per ``3 n`` (the mean overlap of an isostatic packing,
     ~3 contacts per element in 3-D): 0 for an unjammed packing."""
-    return float(_contacts(x, r, lo, hi).sum()) / (3.0 * r.size)
+    return float(_contacts(x, r, lo, hi, period).sum()) / (3.0 * r.size)
 
 
-def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60, x0=None):
+def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60, x0=None,
+        periodic=False):
     """Compress the spheres of radii ``r0`` (reduced units, ``d_mean`` ~ 1) isotropically
     inside the box ``[lo, hi]`` by radius expansion until the mean overlap of the contacts is
     within a factor 2 of ``overlap`` (module docstring, step 2). Returns ``(x, r, info)``.
@@ -214,10 +260,14 @@ def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60, x0=None):
     overlap against scale asks for, each minimised from the nearest jammed state above the
     target (a jammed packing decompresses along its own branch down to its jamming point).
     ``x0``: starting centres (reduced units; default uniformly random in the box), e.g. placed
-    with a density that follows a graded size field (:mod:`geodem.build.graded`)."""
+    with a density that follows a graded size field (:mod:`geodem.build.graded`).
+    ``periodic``: the box is a periodic cell (no faces; centres returned inside it)."""
     rng = np.random.default_rng(seed)
     lo = np.asarray(lo, float)
     hi = np.asarray(hi, float)
+    if periodic and np.any(lo != 0.0):
+        raise ValueError("a periodic cell starts at the origin: lo = 0")
+    period = hi - lo if periodic else None
     dim = lo.size
     vol = float(np.prod(hi - lo))
     unit = (4.0 / 3.0 * np.pi * (r0 ** 3).sum()) if dim == 3 else np.pi * (r0 ** 2).sum()
@@ -238,11 +288,21 @@ def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60, x0=None):
             progress.report(f"jamming: compression cycle {cycles} (at most {max_cycles}), mean "
                             f"overlap {ov:.3g} d")
         r = lam * r0
-        xt = np.clip(x.copy(), lo + r[:, None], hi - r[:, None])
-        st, it = _minimise(xt, r, lo, hi, ftol, emin)
+        if periodic:
+            xt = _wrap(x, period)
+        else:
+            xt = np.clip(x.copy(), lo + r[:, None], hi - r[:, None])
+        # a periodic cell's growth minimised at most GROWTH_CAP iterations: a state that
+        # needs more sits at the jamming point itself (critical slowing down: ~70 % of the
+        # whole jamming's iterations in one such step) and is passed as unjammed
+        capped = periodic and not hi_pts
+        st, it = _minimise(xt, r, lo, hi, ftol, emin, GROWTH_CAP if capped else 200000,
+                           period=period)
         iters += it
-        ov = _load(xt, r, lo, hi) if st != 1 else 0.0
+        ov = _load(xt, r, lo, hi, period) if st not in (1, 3) or not capped else 0.0
         if 0.5 * overlap <= ov <= 2.0 * overlap:
+            if periodic:
+                xt = _wrap(xt, period)
             progress.report(f"jamming: jammed after {cycles} compression cycles ({iters:,} "
                             f"minimiser iterations), mean overlap {ov:.3g} d")
             return xt, r, {"cycles": cycles, "fire_iterations": iters, "scale": float(lam),
@@ -276,8 +336,11 @@ def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60, x0=None):
 
 
 # ============================================================================ bonds
-def _face_contacts(x, r, lo, hi, gap):
-    """``(elem, axis, side)`` of every element surface within ``gap`` of a face of the box."""
+def _face_contacts(x, r, lo, hi, gap, period=None):
+    """``(elem, axis, side)`` of every element surface within ``gap`` of a face of the box
+    (none in a periodic cell)."""
+    if period is not None:
+        return np.zeros((0, 3), np.int64)
     faces = []
     for a in range(x.shape[1]):
         for side in (0, 1):
@@ -287,18 +350,18 @@ def _face_contacts(x, r, lo, hi, gap):
     return np.concatenate(faces).astype(np.int64)
 
 
-def bond_network(x, r, lo, hi, gap, min_bonds=None, max_gap=0.25):
+def bond_network(x, r, lo, hi, gap, min_bonds=None, max_gap=0.25, period=None):
     """Bonded pairs (``i < j``): every pair with surface gap ``<= gap`` plus, for an element
     with fewer than ``min_bonds`` (default ``dim + 1``) bonds and face contacts, its nearest
     neighbours by gap (up to ``max_gap``) until it has ``min_bonds``; and the element-face
-    contacts within ``gap``: ``(elem, axis, side)``. Returns ``(i, j, faces, added)``
-    (``added``: the pairs the rattler rule added)."""
+    contacts within ``gap``: ``(elem, axis, side)`` (none in a periodic cell, ``period``).
+    Returns ``(i, j, faces, added)`` (``added``: the pairs the rattler rule added)."""
     n, dim = x.shape
     min_bonds = dim + 1 if min_bonds is None else int(min_bonds)
-    pi, pj = _pairs(x, r, max_gap)
-    g = np.linalg.norm(x[pj] - x[pi], axis=1) - r[pi] - r[pj]
+    pi, pj = _pairs(x, r, max_gap, period)
+    g = np.linalg.norm(_separation(x, pi, pj, period), axis=1) - r[pi] - r[pj]
     bond = g <= gap
-    faces = _face_contacts(x, r, lo, hi, gap)
+    faces = _face_contacts(x, r, lo, hi, gap, period)
     cnt = (np.bincount(pi[bond], minlength=n) + np.bincount(pj[bond], minlength=n)
            + np.bincount(faces[:, 0], minlength=n))
     added = 0
@@ -314,18 +377,21 @@ def bond_network(x, r, lo, hi, gap, min_bonds=None, max_gap=0.25):
     return pi[bond], pj[bond], faces, added
 
 
-def stress_free_network(xj, rj, lo, hi, gap=DEFAULT_GAP, prestress=DEFAULT_PRESTRESS):
+def stress_free_network(xj, rj, lo, hi, gap=DEFAULT_GAP, prestress=DEFAULT_PRESTRESS,
+                        period=None):
     """Steps 3 and 4 of the module docstring on a jammed packing (reduced units): the bond
     network within ``gap`` (:func:`bond_network`), then positions and radii made stress-free
     (:func:`stress_free`); pairs or faces the adjustment brings into contact are bonded too and
-    the adjustment redone (up to 5 times). Returns ``(x, r, i, j, faces, added, residual)``."""
-    i, j, faces, added = bond_network(xj, rj, lo, hi, gap)
+    the adjustment redone (up to 5 times). ``period``: a periodic cell ``[0, period)``
+    instead of the box's faces. Returns ``(x, r, i, j, faces, added, residual)``."""
+    i, j, faces, added = bond_network(xj, rj, lo, hi, gap, period=period)
     for _ in range(5):
-        xs, rs, res = stress_free(xj, rj, i, j, faces, lo, hi, prestress=prestress)
+        xs, rs, res = stress_free(xj, rj, i, j, faces, lo, hi, prestress=prestress,
+                                  period=period)
         # pairs or faces the adjustment brought into contact: bond them too and redo
-        pi, pj = _pairs(xs, rs, 0.0)
+        pi, pj = _pairs(xs, rs, 0.0, period)
         new = set(zip(pi.tolist(), pj.tolist())) - set(zip(i.tolist(), j.tolist()))
-        fnew = {tuple(f) for f in _face_contacts(xs, rs, lo, hi, 0.0).tolist()} - \
+        fnew = {tuple(f) for f in _face_contacts(xs, rs, lo, hi, 0.0, period).tolist()} - \
             {tuple(f) for f in faces.tolist()}
         if not new and not fnew:
             break
@@ -338,10 +404,11 @@ def stress_free_network(xj, rj, lo, hi, gap=DEFAULT_GAP, prestress=DEFAULT_PREST
 
 
 def stress_free(x, r, i, j, faces, lo, hi, *, prestress=DEFAULT_PRESTRESS, iterations=6,
-                tol=1e-10):
+                tol=1e-10, period=None):
     """Adjust positions and radii (minimum-norm Gauss-Newton) so that every pair ``(i, j)``
     overlaps by ``prestress`` and every face contact ``(elem, axis, side)`` is tangent to its
-    face of ``[lo, hi]``. Returns ``(x, r, residual)`` (largest remaining error)."""
+    face of ``[lo, hi]`` (pairs by their nearest image in a periodic cell ``[0, period)``).
+    Returns ``(x, r, residual)`` (largest remaining error)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.linalg import lsqr
 
@@ -354,7 +421,7 @@ def stress_free(x, r, i, j, faces, lo, hi, *, prestress=DEFAULT_PRESTRESS, itera
     # one BLAS thread: lsqr's dot products then sum in the same order on every machine
     blas = single_threaded_blas()
     for _ in range(iterations):
-        dvec = x[j] - x[i]
+        dvec = _separation(x, i, j, period)
         dist = np.linalg.norm(dvec, axis=1)
         nrm = dvec / dist[:, None]
         # residuals: gap + prestress (pairs), surface - plane (faces)
@@ -391,12 +458,15 @@ def stress_free(x, r, i, j, faces, lo, hi, *, prestress=DEFAULT_PRESTRESS, itera
 
 # ============================================================================ driver
 def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=None,
-                      overlap=DEFAULT_OVERLAP, gap=DEFAULT_GAP, prestress=DEFAULT_PRESTRESS):
+                      overlap=DEFAULT_OVERLAP, gap=DEFAULT_GAP, prestress=DEFAULT_PRESTRESS,
+                      tile=None):
     """A dense, isotropic, stress-free random packing filling the box ``[0, size]`` (module
     docstring). ``n`` elements (default: ``phi`` x box volume / mean element volume, so that
     the jammed diameters come out close to ``d_mean``; ``phi`` default: 0.635 in 3-D, 0.84 in
     2-D); ``overlap``, ``gap`` and ``prestress``
-    in units of ``d_mean``. Returns ``(x, r, report)`` in metres; the report has ``n``,
+    in units of ``d_mean``. Above :data:`TILE_ABOVE` elements (``tile`` None; True: always,
+    False: never) the packing is a periodic cell repeated over the box
+    (:func:`tiled_packing`). Returns ``(x, r, report)`` in metres; the report has ``n``,
     ``d_mean`` (of the result), ``scale`` (jammed / requested diameters), ``jam_overlap``,
     ``bonds`` (pairs to bond), ``face_contacts``, ``rattler_bonds``, ``max_radius_change``
     (relative), ``residual`` (in d_mean), ``packing_fraction`` (whole box), ``time_s``."""
@@ -409,11 +479,18 @@ def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=None
         raise ValueError(f"size must hold 2 or 3 positive lengths [m], got {size.tolist()}")
     if phi is None:
         phi = PHI_BULK if dim == 3 else PHI_BULK_2D
+    vmean = (math.pi / 6.0 * packing._mean_dpow(d_mean, distri_rate, 3) if dim == 3
+             else math.pi / 4.0 * packing._mean_dpow(d_mean, distri_rate, 2))
+    whole = n is None
     if n is None:
-        vmean = (math.pi / 6.0 * packing._mean_dpow(d_mean, distri_rate, 3) if dim == 3
-                 else math.pi / 4.0 * packing._mean_dpow(d_mean, distri_rate, 2))
         # a wall leaves a looser layer: about WALL_DEFICIT d_mean of each face counts as empty
         n = round(phi * float(np.prod(size - 2.0 * WALL_DEFICIT * d_mean)) / vmean)
+    if tile or (tile is None and n > TILE_ABOVE):
+        cells = tile_counts(size, vmean, phi)
+        n_cell = round(phi * float(np.prod(size / cells)) / vmean) if whole else \
+            max(1, round(n / int(np.prod(cells))))
+        return tiled_packing(size, d_mean, distri_rate, cells, n_cell, seed=seed,
+                             overlap=overlap, gap=gap, prestress=prestress)
     rng = np.random.default_rng(seed)
     r0 = packing.radii(n, d_mean, distri_rate, rng) / d_mean
     lo, hi = np.zeros(dim), size / d_mean
@@ -428,3 +505,66 @@ def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=None
            "max_shift": float(np.abs(xs - xj).max()), "residual": res,
            "packing_fraction": float(vol), "time_s": time.perf_counter() - t0}
     return xs * d_mean, rs * d_mean, rep
+
+
+def tile_counts(size, vmean, phi, elements=TILE_ELEMENTS) -> np.ndarray:
+    """Cells along each axis of the box ``size`` [m] for cells of about ``elements`` elements
+    of mean volume ``vmean`` [m^dim] at solid fraction ``phi``: the cell's side closest to
+    that cube's, and a whole number of cells along every axis."""
+    size = np.asarray(size, float)
+    side = (elements * vmean / phi) ** (1.0 / size.size)
+    return np.maximum(1, np.round(size / side)).astype(np.int64)
+
+
+def tiled_packing(size, d_mean, distri_rate, cells, n_cell, *, seed=0,
+                  overlap=DEFAULT_OVERLAP, gap=DEFAULT_GAP, prestress=DEFAULT_PRESTRESS):
+    """A random packing of the box ``[0, size]`` [m] made of one periodic cell
+    (``size / cells``, ``n_cell`` elements) repeated ``cells`` times along the axes: the cell
+    jammed (:func:`jam`, periodic) and made stress-free (:func:`stress_free_network`,
+    periodic), so that every bond across a cell boundary is a bond of the cell itself and the
+    repeated packing is stress-free everywhere. Its cost is the cell's plus a copy: about
+    linear in the box. The micro-structure repeats every cell side (about 20 d_mean for
+    :data:`TILE_ELEMENTS`); the box's faces cut the repeated cells (centres inside, elements
+    across a face overhang it, no face contacts; an element left without a bond there is
+    dropped). Returns ``(x, r, report)`` as :func:`isotropic_packing`, the report with
+    ``tiles`` (cells per axis), ``tile_elements``, ``tile_size`` [m] and ``loose_removed``."""
+    from geodem.build import packing
+
+    t0 = time.perf_counter()
+    size = np.asarray(size, float)
+    cells = np.asarray(cells, np.int64)
+    dim = size.size
+    rng = np.random.default_rng(seed)
+    r0 = packing.radii(int(n_cell), d_mean, distri_rate, rng) / d_mean
+    cell = size / d_mean / cells
+    progress.report(f"isotropic packing: a periodic cell of {int(n_cell):,} elements, "
+                    f"repeated {' x '.join(str(int(c)) for c in cells)}")
+    xj, rj, info = jam(r0, np.zeros(dim), cell, overlap=overlap, seed=rng.integers(2 ** 31),
+                       periodic=True)
+    xs, rs, i, j, _, added, res = stress_free_network(xj, rj, np.zeros(dim), cell, gap,
+                                                      prestress, period=cell)
+    shift = float(np.abs(xs - xj - cell * np.floor((xs - xj) / cell + 0.5)).max())
+    xs = _wrap(xs, cell)
+    grid = np.stack(np.meshgrid(*[np.arange(c) for c in cells], indexing="ij"), axis=-1)
+    x = (xs[None, :, :] + (grid.reshape(-1, dim) * cell)[:, None, :]).reshape(-1, dim)
+    r = np.tile(rs, int(np.prod(cells)))
+    pi, pj = _pairs(x, r, 0.0)  # the touching pairs: the bonds inside the box
+    bonded = np.bincount(np.concatenate([pi, pj]), minlength=r.size)
+    keep = bonded > 0
+    if not keep.all():  # elements the box's faces cut from all their bonds
+        x, r = x[keep], r[keep]
+        pi, pj = _pairs(x, r, 0.0)
+    hi = size / d_mean
+    vol = packing.element_volume(r, dim).sum() / np.prod(hi)
+    rep = {"n": int(r.size), "d_mean": 2.0 * float(r.mean()) * d_mean, "scale": info["scale"],
+           "jam_overlap": info["mean_overlap"], "jam_cycles": info["cycles"],
+           "fire_iterations": info["fire_iterations"], "bonds": int(pi.size),
+           "face_contacts": 0, "rattler_bonds": int(added) * int(np.prod(cells)),
+           "max_radius_change": float(np.abs(rs / rj - 1.0).max()), "max_shift": shift,
+           "residual": res, "packing_fraction": float(vol),
+           "tiles": [int(c) for c in cells], "tile_elements": int(n_cell),
+           "tile_size": [float(c) * d_mean for c in cell],
+           "loose_removed": int((~keep).sum()), "time_s": time.perf_counter() - t0}
+    progress.report(f"isotropic packing: {rep['n']:,} elements, {rep['bonds']:,} bonds in "
+                    f"{rep['time_s']:.1f} s")
+    return x * d_mean, r * d_mean, rep

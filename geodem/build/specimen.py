@@ -229,7 +229,8 @@ def isotropic_specimen(shp, d_mean, distri_rate, params, rho, *, seed=0, backend
                        tol=1e-3, **packing_kw):
     """A bonded random specimen of shape ``shp`` (:func:`specimen_shape`) from
     :func:`geodem.build.isotropic.isotropic_packing`: a box is packed in itself (flat faces,
-    the box of the packing), other shapes in their bounding box (and cut: centres inside).
+    the box of the packing; above ``TILE_ABOVE`` elements a repeated periodic cell, its faces
+    cut), other shapes in their bounding box (and cut: centres inside).
     The bond range is ``params["bond_gap"]`` (d_mean; default the packing's 0.01).
     The packing's bonded pairs touch, stress-free; :func:`cement` bonds them (gap 0) with the
     element parameters ``params`` (at ``d_mean``) and balances; Morton-sorted. Every element is

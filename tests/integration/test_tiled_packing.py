@@ -1,0 +1,99 @@
+"""Large random packings from a periodic cell (geodem.build.isotropic.tiled_packing).
+
+The whole box jammed at once costs ~N^2.6 (docs/performance.md); above TILE_ABOVE elements the
+packing is one periodic cell, jammed and made stress-free with its bonds across the cell's
+boundaries, repeated over the box. The repeated packing must be stress-free everywhere (every
+touching pair overlaps by the prestress, inside a cell and across two), the cells exact copies,
+and its interior what the whole-box jamming gives: ~6.7 contacts per element, solid fraction
+~0.65.
+"""
+import numpy as np
+import pytest
+
+from geodem.build import isotropic
+
+pytestmark = pytest.mark.usefixtures("one_numba_thread")
+
+CELLS = (2, 2, 1)
+SIZE = np.array([9.0, 9.0, 4.5])  # d_mean = 1: cells 4.5 across
+
+
+@pytest.fixture(scope="module")
+def tiled():
+    return isotropic.tiled_packing(SIZE, 1.0, 0.2, CELLS, 300, seed=4)
+
+
+def test_every_touching_pair_is_stress_free_across_the_cells(tiled):
+    x, r, rep = tiled
+    pi, pj = isotropic._pairs(x, r, 0.05)
+    gap = np.linalg.norm(x[pj] - x[pi], axis=1) - r[pi] - r[pj]
+    touching = gap <= 0.0
+    assert np.allclose(gap[touching], -isotropic.DEFAULT_PRESTRESS, atol=1e-10)
+    assert rep["bonds"] == touching.sum()
+    a, b = x[pi[touching]], x[pj[touching]]
+
+    def crossing(axis, plane):
+        return int(((a[:, axis] - plane) * (b[:, axis] - plane) < 0).sum())
+
+    # as many bonds across the cells' boundary as across a plane through a cell's middle
+    for axis in (0, 1):
+        boundary, middle = crossing(axis, 4.5), crossing(axis, 2.25) + crossing(axis, 6.75)
+        assert boundary > 40 and boundary == pytest.approx(0.5 * middle, rel=0.3)
+
+
+def test_the_cells_are_copies_and_the_centres_lie_in_the_box(tiled):
+    x, r, rep = tiled
+    assert rep["tiles"] == list(CELLS) and rep["tile_elements"] == 300
+    assert rep["n"] == 4 * 300 - rep["loose_removed"] and rep["loose_removed"] < 12
+    assert np.all(x >= 0.0) and np.all(x < SIZE)
+    side = SIZE / CELLS
+    first = x[np.all(x < side, axis=1)]
+    shifted = x[np.all((x >= [side[0], 0, 0]) & (x < [2 * side[0], side[1], side[2]]), axis=1)]
+    a = first[np.lexsort(first.T)]
+    b = shifted[np.lexsort(shifted.T)] - [side[0], 0.0, 0.0]
+    assert a.shape == b.shape and np.allclose(a, b, atol=1e-12)
+
+
+def test_the_periodic_cell_is_jammed_like_a_box():
+    """Interior coordination and density of a periodic cell against the whole-box jamming of
+    the same box (both ~1,000 elements; the box's interior 2 d_mean from its faces)."""
+    z, phi = {}, {}
+    side = 10.0
+    for tile in (False, True):
+        zs, ps = [], []
+        for seed in (1,):
+            x, r, rep = isotropic.isotropic_packing([side] * 3, 1.0, seed=seed, tile=tile)
+            pi, pj = isotropic._pairs(x, r, 0.0)
+            cnt = np.bincount(np.concatenate([pi, pj]), minlength=r.size)
+            inner = np.all((x > 2.0) & (x < side - 2.0), axis=1)
+            zs.append(cnt[inner].mean())
+            ps.append(rep["packing_fraction"])
+        z[tile], phi[tile] = np.mean(zs), np.mean(ps)
+    assert 6.2 < z[True] < 7.2 and z[True] == pytest.approx(z[False], rel=0.05)
+    assert 0.62 < phi[True] < 0.67
+
+
+def test_tile_counts_keep_the_cells_near_the_requested_size():
+    vmean = np.pi / 6.0  # d_mean 1
+    side = (8000 * vmean / 0.635) ** (1 / 3)
+    assert list(isotropic.tile_counts([side] * 3, vmean, 0.635)) == [1, 1, 1]
+    assert list(isotropic.tile_counts([10 * side, 2.4 * side, 0.3 * side], vmean, 0.635)) == \
+        [10, 2, 1]
+
+
+def test_a_large_box_is_tiled_and_a_small_one_is_not(monkeypatch):
+    calls = []
+    monkeypatch.setattr(isotropic, "tiled_packing",
+                        lambda *a, **k: calls.append((a, k)) or (None, None, {}))
+    isotropic.isotropic_packing([40.0, 40.0, 40.0], 1.0)  # ~77,000 elements
+    assert len(calls) == 1 and list(calls[0][0][3]) == [2, 2, 2]
+    class Jammed(Exception):
+        pass
+
+    def whole_box(*a, **k):
+        raise Jammed
+
+    monkeypatch.setattr(isotropic, "jam", whole_box)
+    with pytest.raises(Jammed):  # 2,000 elements: the whole box, as before
+        isotropic.isotropic_packing([12.5] * 3, 1.0)
+    assert len(calls) == 1
