@@ -148,6 +148,20 @@ PRIOR_ROTATION = {
     3: {"E": 2.3, "Tu": 5.0, "Cu": 7.3, "s_of_nu": (0.343, 0.186, -0.51), "dnu_ds": -0.51,
         "phi_of_mu": ((0.05, 24.7), (0.245, 36.6)), "dlnCu_dlnmu": 0.4},
 }
+#: 3-D turning elements: the entries that differ with the rolling stiffness BETA (the nearest
+#: measured BETA in ln BETA is taken). BETA 8: :data:`PRIOR_ROTATION` above. BETA 4 (the
+#: library's 3-D recipe): the marble calibrated from a start at mu 0.15 (``geodem calibrate FILE
+#: --dim 3 --bond-moment 100 --rolling-stiffness 4 --friction --packings 3 --start START``,
+#: commit 62ddf97) met all five targets at its first iteration with kn, F_t and fs0 x 1.241,
+#: 1.156 and 1.321 of what the BETA 8 rates give, ks / kn 0.201 at nu 0.250; its angle: 39.6
+#: deg at mu 0.15, 43.2 at 0.275, 43.9 at 0.386 (an earlier marble calibration at BETA 4,
+#: three packings each; flat at high mu), and the BETA 8 marble's elements at BETA 4 read 33.4
+#: deg at mu 0.10 (one packing): steep below mu 0.15. Its Cu rose 3.8 % as mu fell from 0.344
+#: to 0.308: no dCu / d ln mu of the 2-D size.
+PRIOR_ROTATION_3D_BETA = {
+    4.0: {"E": 2.85, "Tu": 5.78, "Cu": 9.64, "s_of_nu": (0.201, 0.25, -0.51),
+          "phi_of_mu": ((0.10, 33.4), (0.15, 39.6), (0.275, 43.2)), "dlnCu_dlnmu": 0.1},
+}
 
 
 #: the library's 2-D recipe (docs/calibration.md, "Measured: the library"): turning elements
@@ -193,10 +207,16 @@ def library_friction_left_out(targets: dict) -> str | None:
 
 def prior_table(dim: int, structure: dict | None = None) -> dict:
     """The prior rates and slopes for ``dim`` and the micro-structure (:data:`PRIOR`, with
-    :data:`PRIOR_ROTATION` over it for turning elements)."""
+    :data:`PRIOR_ROTATION` over it for turning elements, and in 3-D
+    :data:`PRIOR_ROTATION_3D_BETA` for the nearest rolling stiffness measured)."""
     p = dict(PRIOR[dim])
     if structure and structure.get("rotation"):
         p.update(PRIOR_ROTATION.get(dim, {}))
+        if dim == 3:
+            beta = float(structure.get("rolling_stiffness") or 1.0)
+            near = min(list(PRIOR_ROTATION_3D_BETA) + [8.0],
+                       key=lambda b: abs(math.log(b / beta)))
+            p.update(PRIOR_ROTATION_3D_BETA.get(near, {}))
     return p
 
 
@@ -250,7 +270,9 @@ class CalibrationSpec:
     d_mean: float = 0.005
     ucs_size: tuple = (0.1, 0.2)
     # the Brazilian check's disc [m]; None: 40 d_mean across in 2-D (a smaller disc cracks
-    # under its platens first: docs/calibration.md, "Rolling stiffness"), 10 in 3-D
+    # under its platens first: docs/calibration.md, "Rolling stiffness"); 3-D: 20 for turning
+    # elements (the turning marble split 10-across discs at 1.38 x Tu, 20-across ones at
+    # 1.27 x: docs/calibration.md, "Friction angle in 3-D"), 10 for translating ones
     disc_diameter: float | None = None
     # the Brazilian check stops at a load drop below disc_drop x its peak with a crack near
     # the centre (the brazilian step's drop); None: 0.9 for turning elements (it catches the
@@ -300,7 +322,8 @@ class CalibrationSpec:
         if self.jobs is not None and not 1 <= int(self.jobs) <= 64:
             raise ValueError(f"jobs = {self.jobs!r}: allowed 1-64")
         if self.disc_diameter is None:
-            self.disc_diameter = (40.0 if self.dim == 2 else 10.0) * float(self.d_mean)
+            across = 40.0 if self.dim == 2 else 20.0 if self.structure.get("rotation") else 10.0
+            self.disc_diameter = across * float(self.d_mean)
         if self.disc_drop is None:
             self.disc_drop = 0.9 if self.structure.get("rotation") else 0.8
         if not 0.5 <= float(self.disc_drop) < 1.0:
@@ -417,6 +440,8 @@ def _phi_stuck(phi, target, tol=TOLERANCES["phi"]) -> bool:
     off = np.asarray(phi, float)[-2:] - target
     return bool(off.size == 2 and np.all(np.isfinite(off)) and abs(off[0]) > tol
                 and abs(off[1]) > tol and off[0] * off[1] > 0)
+
+
 #: ridge weight pulling the local slopes toward the prior ones (per unit of SHAPE_SCALE): a
 #: direction the samples have not explored keeps the prior slope
 RIDGE = 0.05

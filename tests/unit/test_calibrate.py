@@ -73,8 +73,8 @@ def test_bad_spec_is_refused():
 
 def test_the_brazilian_check_disc_follows_the_spec_and_the_options():
     """The check disc's diameter and stop (``--disc-diameter``, ``--disc-drop``): the options
-    given, else the stored specimen's, else the defaults: 40 d_mean across in 2-D, 10 in 3-D;
-    drop 0.9 for turning elements, 0.8 else."""
+    given, else the stored specimen's, else the defaults: 40 d_mean across in 2-D, 10 in 3-D
+    (20 for turning elements); drop 0.9 for turning elements, 0.8 else."""
     from geodem.cli import _disc_options
 
     wf = C._brazilian_workflow(C.CalibrationSpec(targets=TARGETS), {"kn": 1.0})
@@ -83,6 +83,9 @@ def test_the_brazilian_check_disc_follows_the_spec_and_the_options():
     assert turning.disc_drop == 0.9
     spec3 = C.CalibrationSpec(targets=TARGETS, dim=3, d_mean=0.01, ucs_size=(0.1, 0.1, 0.2))
     assert spec3.disc_diameter == pytest.approx(0.1) and spec3.disc_drop == 0.8
+    turning3 = C.CalibrationSpec(targets=TARGETS, dim=3, d_mean=0.01, ucs_size=(0.1, 0.1, 0.2),
+                                 structure={"rotation": True})
+    assert turning3.disc_diameter == pytest.approx(0.2) and turning3.disc_drop == 0.9
     opts = _disc_options(0.15, None, {"disc_diameter": 0.1, "disc_drop": 0.9})
     assert opts == {"disc_diameter": 0.15, "disc_drop": 0.9}
     wf = C._brazilian_workflow(C.CalibrationSpec(targets=TARGETS, **opts), {"kn": 1.0})
@@ -303,11 +306,18 @@ def test_turning_elements_take_the_rotation_prior():
     mud = dict(TARGETS, mu_i=math.tan(math.radians(28.0)))
     assert C.prior_guess(C.CalibrationSpec(targets=mud, structure=rot, friction=True))["mu"] \
         == pytest.approx(C.MU_RANGE[0])
-    # 3-D: its own rotation rates over the translation table's slopes
-    table3 = C.prior_table(3, rot)
+    # 3-D: its own rotation rates over the translation table's slopes, by the rolling
+    # stiffness measured nearest (in ln BETA): BETA 8 and BETA 4 (1 and 5 take 4's)
+    rot8 = dict(rot, rolling_stiffness=8.0)
+    table3 = C.prior_table(3, rot8)
     assert table3["E"] == C.PRIOR_ROTATION[3]["E"] and table3["dlnE_ds"] == C.PRIOR[3]["dlnE_ds"]
+    for beta in (1.0, 4.0, 5.0):
+        t4 = C.prior_table(3, dict(rot, rolling_stiffness=beta))
+        assert t4["E"] == C.PRIOR_ROTATION_3D_BETA[4.0]["E"]
+        assert t4["dnu_ds"] == C.PRIOR_ROTATION[3]["dnu_ds"]
+    assert C.prior_table(3, dict(rot, rolling_stiffness=6.0))["E"] == C.PRIOR_ROTATION[3]["E"]
     s0, nu0, slope = C.PRIOR_ROTATION[3]["s_of_nu"]
-    turning3 = C.prior_guess(C.CalibrationSpec(targets=dict(TARGETS, nu=0.2), structure=rot,
+    turning3 = C.prior_guess(C.CalibrationSpec(targets=dict(TARGETS, nu=0.2), structure=rot8,
                                                dim=3, d_mean=0.01, ucs_size=(0.1, 0.1, 0.2)))
     assert turning3["ks_per_d"] / turning3["kn_per_d"] == pytest.approx(
         s0 + (0.2 - nu0) / slope, rel=1e-9)  # 0.3425: the sandstone's first step, taken
