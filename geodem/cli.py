@@ -792,9 +792,10 @@ def calibrate_cmd(
     recipe: Annotated[Optional[str], typer.Option(
         "--recipe", help="'library': the library's recipe for this rock (2-D: turning "
                          "elements, bond moment 100, the rolling stiffness by its friction "
-                         "angle, the friction angle matched on three packings; 3-D: "
-                         "translating elements, four targets), for a rock of your own; the "
-                         "other recipe options then change it (docs/calibration.md).")] = None,
+                         "angle, the friction angle matched on three packings; 3-D: turning "
+                         "elements at rolling stiffness 4 for a friction angle of 33-44 deg, "
+                         "else translating ones), for a rock of your own; the other recipe "
+                         "options then change it (docs/calibration.md).")] = None,
     start: Annotated[Optional[str], typer.Option(
         "--start", help="Start from the element parameters (kn_per_d, ks_per_d, xb_per_d, "
                         "fs0_per_d2, mu) of this YAML file: an earlier run's calibrated.yaml "
@@ -806,7 +807,8 @@ def calibrate_cmd(
 
     from geodem.studies.calibrate import (CalibrationSpec, UnreachableTarget, calibrate,
                                            check_reachable, library_friction_left_out,
-                                           library_recipe, save_calibration)
+                                           library_recipe, library_turning_left_out,
+                                           save_calibration)
     from geodem.materials_library import load_material, material_path
 
     if prefer not in ("Cu", "Tu"):
@@ -864,6 +866,9 @@ def calibrate_cmd(
               highlight=False)
     if recipe == "library":
         con.print(f"the library's {dim}-D recipe: {_recipe_text(spec)}", highlight=False)
+        translating = library_turning_left_out(mat.values()) if dim == 3 else None
+        if translating and not spec.structure.get("rotation"):
+            con.print(f"translating elements: {translating}", highlight=False)
         left_out = library_friction_left_out(mat.values()) if dim == 3 and not friction \
             else None
         if left_out:

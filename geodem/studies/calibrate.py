@@ -73,7 +73,7 @@ from geodem import threads
 from geodem.materials import macro_to_micro, per_size
 
 __all__ = ["CalibrationSpec", "UnreachableTarget", "calibrate", "check_reachable",
-           "library_recipe",
+           "library_recipe", "library_turning_left_out",
            "brazilian_check", "measure_friction", "friction_angle", "save_calibration",
            "save_brazilian_check",
            "calibration_block", "to_unknowns", "from_unknowns", "TOLERANCES"]
@@ -174,24 +174,55 @@ LIBRARY_BOND_MOMENT = 100.0
 LIBRARY_PACKINGS = 3
 
 
+#: the library's 3-D turning elements: bond moment 100 and rolling stiffness 4 (a 3-D disc of
+#: translating elements splits at 1.65-3.3 x Tu; the marble on these, all five targets met,
+#: at 1.11 x on 20-across discs: docs/calibration.md, "Friction angle in 3-D")
+LIBRARY_BETA_3D = 4.0
+#: the friction angles [deg] those elements were measured to reach, from the lowest contact
+#: friction measured to where the angle flattens (33.4 deg at mu 0.10, 39.6 at 0.15, 43.2 at
+#: 0.275, 43.9 at 0.386, on the marble's springs, nu 0.25): outside, translating elements
+LIBRARY_TURNING_PHI_3D = (33.0, 44.0)
+
+
+def library_turning_left_out(targets: dict) -> str | None:
+    """Why the 3-D library recipe takes translating elements for ``targets``: no friction
+    angle given, or one outside what the turning ones were measured to reach
+    (:data:`LIBRARY_TURNING_PHI_3D`); None when it takes turning ones."""
+    mu_i = targets.get("mu_i")
+    if not mu_i:
+        return "no friction angle given: translating elements (four targets)"
+    phi = friction_angle(float(mu_i))
+    low, high = LIBRARY_TURNING_PHI_3D
+    if low <= phi <= high:
+        return None
+    return (f"phi = {phi:.1f} deg lies outside the {low:g}-{high:g} deg that 3-D turning "
+            f"elements (rolling stiffness {LIBRARY_BETA_3D:g}) were measured to reach: "
+            "translating elements instead (their Brazilian disc splits above Tu)")
+
+
 def library_recipe(dim: int, targets: dict) -> tuple[dict, bool, int]:
     """The library's recipe for a rock with ``targets`` (``mu_i`` the tangent of its friction
     angle): ``(structure, friction, packings)``. 2-D: turning elements (bond moment
     :data:`LIBRARY_BOND_MOMENT`, BETA from :data:`LIBRARY_BETA_BY_PHI`), the friction angle
-    matched when ``mu_i`` is given, :data:`LIBRARY_PACKINGS` packings. 3-D: translating
-    elements on as many packings, the friction angle matched unless it lies below what they
-    reach (:func:`library_friction_left_out`; turning 3-D elements overshoot the angles:
-    docs/calibration.md)."""
+    matched when ``mu_i`` is given, :data:`LIBRARY_PACKINGS` packings. 3-D: turning elements
+    (bond moment :data:`LIBRARY_BOND_MOMENT`, BETA :data:`LIBRARY_BETA_3D`) for a friction
+    angle within :data:`LIBRARY_TURNING_PHI_3D` (:func:`library_turning_left_out`); else
+    translating ones, the friction angle matched unless it lies below what those reach
+    (:func:`library_friction_left_out`)."""
     mu_i = targets.get("mu_i")
     if dim == 3:
-        structure = {"packing": "isotropic"}
+        if library_turning_left_out(targets) is None:
+            return _turning(LIBRARY_BETA_3D), True, LIBRARY_PACKINGS
         friction = bool(mu_i) and library_friction_left_out(targets) is None
-        return structure, friction, LIBRARY_PACKINGS
+        return {"packing": "isotropic"}, friction, LIBRARY_PACKINGS
     phi = math.degrees(math.atan(float(mu_i))) if mu_i else 35.0
     beta = next(b for lowest, b in LIBRARY_BETA_BY_PHI if phi >= lowest)
-    structure = {"packing": "isotropic", "rotation": True, "bond_moment": LIBRARY_BOND_MOMENT,
-                 "rolling_friction": 0.0, "rolling_stiffness": beta}
-    return structure, bool(mu_i), LIBRARY_PACKINGS
+    return _turning(beta), bool(mu_i), LIBRARY_PACKINGS
+
+
+def _turning(beta: float) -> dict:
+    return {"packing": "isotropic", "rotation": True, "bond_moment": LIBRARY_BOND_MOMENT,
+            "rolling_friction": 0.0, "rolling_stiffness": float(beta)}
 
 
 def library_friction_left_out(targets: dict) -> str | None:
