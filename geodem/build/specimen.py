@@ -257,6 +257,22 @@ def isotropic_specimen(shp, d_mean, distri_rate, params, rho, *, seed=0, backend
     return st, rep
 
 
+def packing_notes(report) -> list[str]:
+    """What a specimen's build report ``report`` (:func:`isotropic_specimen`'s) says the user
+    should know: a packing built from a repeated periodic cell (above
+    ``geodem.build.isotropic.TILE_ABOVE`` elements)."""
+    prep = (report or {}).get("packing") or {}
+    if "tiles" not in prep:
+        return []
+    from geodem.build.isotropic import TILE_ABOVE
+
+    return [f"the random packing's {prep['n']:,} elements are a periodic cell of "
+            f"{prep['tile_elements']:,} repeated {' x '.join(map(str, prep['tiles']))} (a box "
+            f"of more than {TILE_ABOVE:,} elements: docs/performance.md, 'Cost against "
+            "model size'); the micro-structure repeats every cell and the box's faces cut the "
+            "cells instead of being flat"]
+
+
 PACKINGS = ("isotropic", "deposit")
 
 

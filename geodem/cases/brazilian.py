@@ -322,6 +322,8 @@ class BrazilianDisc(ModelBase):
         return out + material_problems(cfg, self.material, self.dim, self.d_mean)
 
     def build(self, cfg):
+        from geodem.build.specimen import packing_notes
+
         sm = specimen_material(cfg, self.material, self.dim, self.d_mean)
         seed = self.seed if self.seed is not None else int(cfg.metadata.seed or 0)
         t = self.disc_thickness()
@@ -333,7 +335,8 @@ class BrazilianDisc(ModelBase):
         except ValueError as exc:
             raise BuildError(("diameter",), f"building the disc failed: {exc}") from None
         info = {"diameter": self.d_mean, "disc_diameter": self.diameter, "thickness": t,
-                "centre": centre, "material": sm.label, "material_warnings": list(sm.warnings),
+                "centre": centre, "material": sm.label,
+                "material_warnings": list(sm.warnings) + packing_notes(rep),
                 "specimen_report": {k: v for k, v in rep.items() if k != "packing"}}
         return BuiltModel(st, st.x.copy(), self.n_across(), info)
 

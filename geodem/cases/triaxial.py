@@ -486,6 +486,7 @@ class TriaxialBox(ModelBase):
         return out + material_problems(cfg, self.material, self.dim, self.d_mean)
 
     def build(self, cfg):
+        from geodem.build.specimen import packing_notes
         from geodem.build.walls import add_walls
         from geodem.core import groups
 
@@ -526,7 +527,7 @@ class TriaxialBox(ModelBase):
         # a fresh model for the workflow: its time steps count from 0
         st.step, st.time = 0, 0.0
         info = {"diameter": self.d_mean, "size": list(self.size), "material": sm.label,
-                "material_warnings": list(sm.warnings),
+                "material_warnings": list(sm.warnings) + packing_notes(rep),
                 "walls": {"names": names, "d_wall": dw, "kn": kn,
                           "friction": self.wall_friction,
                           "platen_friction": self.platen_friction, "margin": self.wall_margin,

@@ -105,7 +105,7 @@ class Specimen(ModelBase):
         return out + material_problems(cfg, self.material, self.dim)
 
     def build(self, cfg):
-        from geodem.build.specimen import make_specimen
+        from geodem.build.specimen import make_specimen, packing_notes
         from geodem.core import groups as grp
 
         sm = specimen_material(cfg, self.material, self.dim, self.d_mean)
@@ -131,7 +131,7 @@ class Specimen(ModelBase):
         grp.add_group(st, "bottom", st.x[:, ax] <= lo + depth)
         grp.add_group(st, "top", st.x[:, ax] >= hi - depth)
         info = {"diameter": self.d_mean, "size": list(self.size), "material": sm.label,
-                "material_warnings": list(sm.warnings),
+                "material_warnings": list(sm.warnings) + packing_notes(rep),
                 "specimen_report": {k: v for k, v in rep.items() if k != "packing"}}
         if self.min_bonds:
             info["loose_removed"] = removed

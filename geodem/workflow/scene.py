@@ -855,7 +855,7 @@ class Scene(ModelBase):
         cut by the domain and the empty regions; elements left with fewer than 2 bonds are
         removed and the model is balanced after a cut. Returns ``(state, region, info)``."""
         from geodem.build.shapes import subset_state
-        from geodem.build.specimen import make_specimen, settle, well_bonded
+        from geodem.build.specimen import make_specimen, packing_notes, settle, well_bonded
         from geodem.workflow.material import specimen_material
 
         try:
@@ -874,7 +874,7 @@ class Scene(ModelBase):
         region = self.region_ids(st.x)
         keep = self.domain.mask(st.x) & (region >= 0)
         kept = well_bonded(st, keep, 2)
-        info = {"material": sm.label, "material_warnings": list(sm.warnings),
+        info = {"material": sm.label, "material_warnings": list(sm.warnings) + packing_notes(rep),
                 "elements_removed": int(st.n - keep.sum()),
                 "loose_removed": int(keep.sum() - kept.sum()),
                 "specimen_report": {k: v for k, v in rep.items() if k != "packing"}}

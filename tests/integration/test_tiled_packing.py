@@ -97,3 +97,12 @@ def test_a_large_box_is_tiled_and_a_small_one_is_not(monkeypatch):
     with pytest.raises(Jammed):  # 2,000 elements: the whole box, as before
         isotropic.isotropic_packing([12.5] * 3, 1.0)
     assert len(calls) == 1
+
+
+def test_a_tiled_specimen_says_so_in_its_warnings():
+    from geodem.build.specimen import packing_notes
+
+    note, = packing_notes({"packing": {"n": 40_000, "tiles": [2, 2, 1], "tile_elements": 10_000}})
+    assert "periodic cell of 10,000 repeated 2 x 2 x 1" in note and "20,000" in note
+    assert packing_notes({"packing": {"n": 2_000, "bonds": 7_000}}) == []
+    assert packing_notes({}) == []
