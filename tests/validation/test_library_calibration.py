@@ -4,10 +4,11 @@ iterations, and the stored calibration is what it finds again (`geodem calibrate
 the stored recipe). The cheap slice in CI is tests/unit/test_calibrate.py (synthetic packings).
 Measured: granite 2-D (turning elements, friction angle, three packings; 2026-12-05) converged
 at iteration 4 in 1,354 s with its packings side by side on a busy 2-core machine; marble 3-D
-(translating, friction angle, three packings; 2026-12-05, commit 59ebf2e) at iteration 2 in
-846 s on 2 cores beside a test run. The 3-D recipe starts from the friction chart
-(geodem.studies.reach.FRICTION_POINTS): a point added there moves the first contact friction,
-so the record is found again only with the chart it was calibrated from."""
+(turning elements at rolling stiffness 4, friction angle, three packings, discs 20 across;
+2026-12-06, commit a8d1890) at iteration 1 in 2,248 s on one core beside another calibration.
+The 3-D turning recipe starts from its prior (geodem.studies.calibrate.PRIOR_ROTATION_3D_BETA):
+a change there moves the first iteration, so the record is found again only with the prior it
+was calibrated from."""
 import json
 
 import pytest
