@@ -911,8 +911,6 @@ def _start_element(path: str, dim: int) -> dict:
 
     import yaml
 
-    from geodem.studies.calibrate import from_unknowns, to_unknowns
-
     p = Path(path)
     try:
         doc = yaml.safe_load(p.read_text())
@@ -933,7 +931,7 @@ def _start_element(path: str, dim: int) -> dict:
         if not values[name] > 0 or math.isinf(values[name]):
             _fail(f"{path}: field '{key}.element.{name}' = {v!r}: allowed: a number > 0",
                   USER_ERROR)
-    return from_unknowns(to_unknowns(values))
+    return values
 
 
 @app.command("rock", help=(

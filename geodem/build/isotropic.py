@@ -207,12 +207,15 @@ def _wrap(x, period):
     return np.where(w >= period, 0.0, w)
 
 
+def _nearest_image(d, period):
+    """Separations ``d`` as their nearest image in the periodic cell ``[0, period)``."""
+    return d - period * np.floor(d / period + 0.5)
+
+
 def _separation(x, i, j, period=None):
     """``x[j] - x[i]``; in the periodic cell ``[0, period)`` the nearest image's."""
     d = x[j] - x[i]
-    if period is not None:
-        d -= period * np.floor(d / period + 0.5)
-    return d
+    return d if period is None else _nearest_image(d, period)
 
 
 def _minimise(x, r, lo, hi, ftol, emin, max_iter=200000, period=None):
@@ -299,7 +302,8 @@ def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60, x0=None,
         st, it = _minimise(xt, r, lo, hi, ftol, emin, GROWTH_CAP if capped else 200000,
                            period=period)
         iters += it
-        ov = _load(xt, r, lo, hi, period) if st not in (1, 3) or not capped else 0.0
+        unjammed = st == 1 or (capped and st == 3)
+        ov = 0.0 if unjammed else _load(xt, r, lo, hi, period)
         if 0.5 * overlap <= ov <= 2.0 * overlap:
             if periodic:
                 xt = _wrap(xt, period)
@@ -543,7 +547,7 @@ def tiled_packing(size, d_mean, distri_rate, cells, n_cell, *, seed=0,
                        periodic=True)
     xs, rs, i, j, _, added, res = stress_free_network(xj, rj, np.zeros(dim), cell, gap,
                                                       prestress, period=cell)
-    shift = float(np.abs(xs - xj - cell * np.floor((xs - xj) / cell + 0.5)).max())
+    shift = float(np.abs(_nearest_image(xs - xj, cell)).max())
     xs = _wrap(xs, cell)
     grid = np.stack(np.meshgrid(*[np.arange(c) for c in cells], indexing="ij"), axis=-1)
     x = (xs[None, :, :] + (grid.reshape(-1, dim) * cell)[:, None, :]).reshape(-1, dim)
