@@ -31,3 +31,45 @@ def test_paper_hydraulic_fracturing_holds_100_mpa_on_a_small_plate(tmp_path):
     assert held.any() and np.allclose(a["injection_pressure"][held], 1.0e8, rtol=1e-12)
     assert s["cracks_tensile"] > 10
     assert s["fluid_mass_balance_rel_error"] < 1e-6
+
+
+PAPER_LS3D = ROOT / "workflows" / "paper" / "landslide_3d.yaml"
+
+
+def test_paper_landslide_3d_runs_as_a_composed_3d_scene_at_small_size(tmp_path):
+    """The paper's 3-D landslide (a terrain scene over the whole hill raster) at d = 20 m
+    (about 1,500 elements) for 5 s: a 3-D model, the slide region above its sliding surface,
+    its bonds cut, the slide moving under gravity while the books close."""
+    out = tmp_path / "run"
+    code, s = run_workflow(PAPER_LS3D, out, echo=False, progress=False,
+                           sets=["model.d=20", "model.domain.terrain.base_depth=25",
+                                 "steps.settle.n_across=6", "steps.runout.max_time=5",
+                                 "steps.runout.gif=false"])
+    assert code == 0 and s["status"] == "ok", s.get("error")
+    assert s["dim"] == 3 and 1_000 < s["n_elements"] < 2_500
+    r = s["results"]
+    assert r["settle"]["converged"]
+    assert r["cut"]["bonds_cut"] > 0
+    ro = r["runout"]
+    assert ro["slide_elements"] > 10 and ro["stopped_by"] == "max_time"
+    assert ro["max_element_speed"] > 1.0  # the cut slide moves
+    assert s["energy_closure_rel_error"] < 1e-6
+
+
+PAPER_TBM3D = ROOT / "workflows" / "paper" / "tbm_cutter_3d.yaml"
+
+
+def test_paper_tbm_cutter_3d_cuts_interbedded_rock_at_small_size(tmp_path):
+    """The paper's 3-D TBM block at d_mean = 5 mm (about 1,200 elements), the disc rolled 5 mm:
+    a 3-D model of the two library rocks' 3-D calibrations, the disc pressing into the rock
+    and breaking bonds while the books close."""
+    out = tmp_path / "run"
+    code, s = run_workflow(PAPER_TBM3D, out, echo=False, progress=False,
+                           sets=["model.d_mean=0.005", "model.size=[0.1,0.03,0.04]",
+                                 "steps.cut.distance=0.005", "steps.cut.gif_frames=2",
+                                 "steps.cut.frames=1"])
+    assert code == 0 and s["status"] == "ok", s.get("error")
+    assert s["dim"] == 3 and 800 < s["n_elements"] < 2_000
+    r = s["results"]["cut"]
+    assert r["peak_normal_force"] > 0.0 and r["broken_bonds"] > 0
+    assert s["energy_closure_rel_error"] < 1e-3
