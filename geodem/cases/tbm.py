@@ -287,6 +287,7 @@ class TbmRock(ModelBase):
 
     def build(self, cfg):
         from geodem.build.specimen import make_specimen
+        from geodem.build.specimen import packing_notes
         from geodem.build.walls import append_elements
         from geodem.core import groups as grp
         from geodem.core.engine import Simulation
@@ -372,7 +373,8 @@ class TbmRock(ModelBase):
                 "packing_fraction": volume_el / float(rep["volume"]),
                 "thickness": d if dim == 2 else None,
                 "materials": {k: sms[k].label for k in sms},
-                "material_warnings": [w for sm in sms.values() for w in sm.warnings],
+                "material_warnings": [w for sm in sms.values() for w in sm.warnings]
+                + packing_notes(rep),
                 "packed_with": stiff,
                 "layers": {"dip_deg": self.dip_deg, "thickness": list(self.layer_thickness),
                            "first": self.first, "offset": self.layer_offset},

@@ -177,3 +177,28 @@ def test_graded_scene_bad_input_exits_2_naming_the_field(tmp_path, sets, field):
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 2, res.output
     assert field in res.output, res.output
+
+
+@pytest.mark.parametrize("sets", [["model.fill=lattice"],
+                                  GRADED])
+def test_isotropic_packing_of_a_scene_needs_a_random_fill_without_coarsen(sets):
+    args = ["validate", str(WF), "--set", "model.packing=isotropic"]
+    for s in sets:
+        args += ["--set", s]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2, res.output
+    assert "model.packing" in res.output, res.output
+
+
+def test_isotropic_packing_fills_a_terrain_scene_dense_and_bonded(tmp_path):
+    """``packing: isotropic``: the terrain scene cut from a dense, stress-free random packing
+    of its bounding box, every element bonded, the box's packing report kept."""
+    from geodem.workflow.runner import prepare
+
+    prep = prepare(WF, sets=["model.d=6.0", "model.packing=isotropic"])
+    st, info = prep.built.state, prep.built.info
+    assert info["packing"]["n"] > st.n > 500
+    bonded = np.bincount(np.repeat(np.arange(st.n), st.width)[(st.cstate == 1).ravel()],
+                         minlength=st.n)
+    assert (bonded > 0).all()
+    assert info["material_warnings"] == []  # a box below 20,000 elements is jammed whole
