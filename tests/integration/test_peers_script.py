@@ -37,3 +37,34 @@ def test_geodem_side_and_missing_peers(peers, monkeypatch):
     assert bonded["element_steps_per_s"] > 0 and bonded["bytes_per_element"] > 0
     assert any("Yade (JCFpm)" in ln and "not run: yade is not installed" in ln for ln in lines)
     assert any("LIGGGHTS" in ln and "not run" in ln for ln in lines)
+
+
+@pytest.fixture(scope="module")
+def elastic():
+    spec = importlib.util.spec_from_file_location("elastic", ROOT / "benchmarks/peers/elastic.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_exact_fcc_modulus_with_equal_springs(elastic):
+    """ks = kn: every bond is an isotropic spring, f = k u, so sigma = (d^2 / V) (1/2) k
+    sum n n . eps = 2 k d^2 / V eps (sum over the 12 bonds of n n = 4 I) with V = d^3 / sqrt2:
+    E = 2 sqrt2 k / d, nu = 0."""
+    k = 2.5e6
+    e, nu = elastic.exact(k, k)
+    assert e == pytest.approx(2.0 * math.sqrt(2.0) * k / elastic.D, rel=1e-12)
+    assert abs(nu) < 1e-12
+
+
+def test_geodem_block_is_the_lattice_less_its_surface(elastic, one_numba_thread):
+    """The finite block (8 spheres along an edge) in uniaxial stress: softer than the infinite
+    lattice by its surface bonds, its Poisson ratio the lattice's."""
+    from geodem.build.lattice import fcc_lattice
+
+    kn = 2.5e6
+    e, nu = elastic.exact(kn, 0.25 * kn)
+    r = elastic.run_geodem(fcc_lattice(8, 8, 8, elastic.D), kn, 0.25 * kn)
+    assert r["strain"] == pytest.approx(elastic.EPS, rel=1e-6)
+    assert 0.8 < r["E"] / e < 0.95
+    assert r["nu"] == pytest.approx(nu, abs=0.01)
