@@ -10,12 +10,17 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(scope="module")
-def peers():
-    spec = importlib.util.spec_from_file_location("peers", ROOT / "benchmarks/peers/peers.py")
+def _script(name):
+    """benchmarks/peers/NAME.py as a module."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / f"benchmarks/peers/{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+@pytest.fixture(scope="module")
+def peers():
+    return _script("peers")
 
 
 def test_cube_edge_holds_n_touching_spheres(peers):
@@ -41,10 +46,7 @@ def test_geodem_side_and_missing_peers(peers, monkeypatch):
 
 @pytest.fixture(scope="module")
 def elastic():
-    spec = importlib.util.spec_from_file_location("elastic", ROOT / "benchmarks/peers/elastic.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return _script("elastic")
 
 
 def test_exact_fcc_modulus_with_equal_springs(elastic):
