@@ -106,3 +106,19 @@ def test_a_tiled_specimen_says_so_in_its_warnings():
     assert "periodic cell of 10,000 repeated 2 x 2 x 1" in note and "20,000" in note
     assert packing_notes({"packing": {"n": 2_000, "bonds": 7_000}}) == []
     assert packing_notes({}) == []
+
+
+def test_a_tiled_specimen_is_balanced_over_its_cell(monkeypatch):
+    """A specimen from repeated cells (forced small here) is cemented and balanced with the
+    standard balance's steps over one cell (50 x cell / d_mean per round), not over the box:
+    it still ends in equilibrium (unbalanced ratio below the tolerance)."""
+    from geodem.build.specimen import make_specimen
+
+    monkeypatch.setattr(isotropic, "TILE_ABOVE", 0)
+    monkeypatch.setattr(isotropic.tile_counts, "__defaults__", (300,))
+    st, rep = make_specimen("box", [0.06, 0.06, 0.12], 0.01, 0.2, None, 3, 0)
+    cell = max(rep["packing"]["tile_size"]) / 0.01
+    assert rep["packing"]["tiles"] == [1, 1, 2]
+    assert rep["balanced"] and rep["unbalanced_ratio"] < 1e-3
+    assert rep["steps"] == rep["balance_rounds"] * round(50 * cell)
+    assert rep["steps"] < rep["balance_rounds"] * 50 * 12  # the box is 12 d_mean tall
