@@ -38,12 +38,12 @@ PAPER_LS3D = ROOT / "workflows" / "paper" / "landslide_3d.yaml"
 
 def test_paper_landslide_3d_runs_as_a_composed_3d_scene_at_small_size(tmp_path):
     """The paper's 3-D landslide (a terrain scene over the whole hill raster) at d = 20 m
-    (about 1,500 elements) for 5 s: a 3-D model, the slide region above its sliding surface,
+    (about 1,600 elements; a balance of 1,000 steps) for 5 s: a 3-D model, the slide region above its sliding surface,
     its bonds cut, the slide moving under gravity while the books close."""
     out = tmp_path / "run"
     code, s = run_workflow(PAPER_LS3D, out, echo=False, progress=False,
                            sets=["model.d=20", "model.domain.terrain.base_depth=25",
-                                 "steps.settle.n_across=6", "steps.runout.max_time=5",
+                                 "steps.settle.n_across=20", "steps.runout.max_time=5",
                                  "steps.runout.gif=false"])
     assert code == 0 and s["status"] == "ok", s.get("error")
     assert s["dim"] == 3 and 1_000 < s["n_elements"] < 2_500
