@@ -286,8 +286,7 @@ class TbmRock(ModelBase):
                         self.layer_thickness[1], self.first, self.layer_offset)
 
     def build(self, cfg):
-        from geodem.build.specimen import make_specimen
-        from geodem.build.specimen import packing_notes
+        from geodem.build.specimen import make_specimen, packing_notes
         from geodem.build.walls import append_elements
         from geodem.core import groups as grp
         from geodem.core.engine import Simulation

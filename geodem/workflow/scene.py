@@ -904,35 +904,13 @@ class Scene(ModelBase):
         r, d_nom, info)``: centres, radii, each element's nominal diameter (a graded fill's,
         else None) and entries for the model's info (``graded``; ``packing`` and
         ``material_warnings`` of an isotropic packing)."""
-        from geodem.build import packing
-        from geodem.core import groups as grp
-
         if self.coarsen is not None:
             return self._graded_fill(cfg, lo, hi)
-        d, dim = self.d, self.dim
+        d = self.d
         lo = np.asarray(lo, float)
         seed = int(cfg.metadata.seed or 0)
-        if self.packing == "isotropic":
-            from geodem.build.isotropic import isotropic_packing
-
-            from geodem.build.specimen import packing_notes
-
-            px, pr, rep = isotropic_packing(np.asarray(hi, float) - lo, d, self.distri_rate,
-                                            seed=seed)
-            px = px + lo
-            extra = {"packing": {k: v for k, v in rep.items() if not isinstance(v, list)},
-                     "material_warnings": packing_notes({"packing": rep})}
-        else:
-            hi = np.asarray(hi, float) + np.r_[np.zeros(dim - 1), 2.0 * d]  # it settles lower
-            phi = 0.84 if dim == 2 else 0.63
-            x, r = packing.random_placement((np.zeros(dim), hi - lo), porosity=1.0 - 1.1 * phi,
-                                            d_mean=d, distri_rate=self.distri_rate, seed=seed)
-            dep = packing.deposition_state(x, r, (np.zeros(dim), hi - lo),
-                                           rho=element_params(cfg, self.material, d, dim)["rho"])
-            packing.deposit(dep)
-            s = grp.members(dep, "sample")
-            px, pr = dep.x[s] + lo, dep.r[s].copy()
-            extra = {}
+        fill = self._isotropic_box if self.packing == "isotropic" else self._deposited_box
+        px, pr, extra = fill(cfg, lo, np.asarray(hi, float), seed)
         if self.domain.terrain is not None:
             tm = _terrain_model(self._terrain_key(), packing=(px, pr))
             return np.array(tm.x, float), np.array(tm.r, float), None, extra
@@ -940,6 +918,34 @@ class Scene(ModelBase):
         keep = self.domain.mask(px) & np.all((px - pr[:, None] >= lo0 - 1e-9 * d)
                                              & (px + pr[:, None] <= hi0 + 1e-9 * d), axis=1)
         return px[keep], pr[keep], None, extra
+
+    def _isotropic_box(self, cfg, lo, hi, seed):
+        """The dense, stress-free random packing of the box ``[lo, hi]`` (tiled above 20,000
+        elements); returns ``(x, r, info)``, info with the packing's report and its warning."""
+        from geodem.build.isotropic import isotropic_packing
+        from geodem.build.specimen import packing_notes
+
+        px, pr, rep = isotropic_packing(hi - lo, self.d, self.distri_rate, seed=seed)
+        return px + lo, pr, {"packing": {k: v for k, v in rep.items()
+                                         if not isinstance(v, list)},
+                             "material_warnings": packing_notes({"packing": rep})}
+
+    def _deposited_box(self, cfg, lo, hi, seed):
+        """Elements placed at random in the box ``[lo, hi]`` (2 d taller: it settles lower)
+        and deposited under gravity; returns ``(x, r, {})``."""
+        from geodem.build import packing
+        from geodem.core import groups as grp
+
+        d, dim = self.d, self.dim
+        hi = hi + np.r_[np.zeros(dim - 1), 2.0 * d]
+        phi = 0.84 if dim == 2 else 0.63
+        x, r = packing.random_placement((np.zeros(dim), hi - lo), porosity=1.0 - 1.1 * phi,
+                                        d_mean=d, distri_rate=self.distri_rate, seed=seed)
+        dep = packing.deposition_state(x, r, (np.zeros(dim), hi - lo),
+                                       rho=element_params(cfg, self.material, d, dim)["rho"])
+        packing.deposit(dep)
+        s = grp.members(dep, "sample")
+        return dep.x[s] + lo, dep.r[s].copy(), {}
 
     def _graded_fill(self, cfg, lo, hi):
         """The graded packing of a terrain scene's bounding box
