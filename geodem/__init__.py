@@ -3,5 +3,6 @@
 from geodem import threads as _threads
 
 _threads.choose()  # before numba starts a thread: see geodem.threads
+_threads.choose_wait()  # before libgomp loads: see geodem.threads
 
 __version__ = "0.1.0"

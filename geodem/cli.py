@@ -348,6 +348,9 @@ def info(
     layer = data["numba_threading_layer"]
     t.add_row("numba threads", f"{data['numba_threads']} (NUMBA_NUM_THREADS)")
     t.add_row("threading layer", f"{layer['layer']} (chosen by {layer['chosen_by']})")
+    if "wait" in layer:
+        t.add_row("OpenMP waiting", f"{layer['wait']['setting']} (chosen by "
+                                    f"{layer['wait']['chosen_by']})")
     con.print(t)
 
     b = Table(title="backends", title_justify="left")

@@ -44,6 +44,65 @@ def choose() -> None:
         config.THREADING_LAYER_PRIORITY = list(PRIORITY)
 
 
+# ============================================================================ OpenMP waiting
+#: how long (busy-wait iterations) an OpenMP thread of GNU libgomp spins at the end of a
+#: parallel region before it sleeps; libgomp's own default is 300,000 (``OMP_WAIT_POLICY``
+#: unset). See :func:`choose_wait` for the figures behind this value.
+SPINCOUNT = "1000"
+_ENV_WAIT = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
+_ENV_MARK = "GEODEM_SET_GOMP_SPINCOUNT"  # tells a child process the value came from geodem
+
+
+def user_wait_choice() -> str | None:
+    """The OpenMP waiting setting the user made in the environment, as text, or None."""
+    for name in _ENV_WAIT:
+        value = os.environ.get(name, "").strip()
+        if value and not (name == "GOMP_SPINCOUNT" and os.environ.get(_ENV_MARK) == value):
+            return f"{name}={value}"
+    return None
+
+
+def _libgomp_loaded() -> bool:
+    """Whether GNU libgomp is already in this process (it reads its settings when it loads,
+    so a setting made later has no effect). Linux only; elsewhere False."""
+    try:
+        with open("/proc/self/maps") as maps:
+            return any("libgomp" in line for line in maps)
+    except OSError:
+        return False
+
+
+def choose_wait() -> None:
+    """Set ``GOMP_SPINCOUNT`` to :data:`SPINCOUNT` unless the user set ``OMP_WAIT_POLICY`` or
+    ``GOMP_SPINCOUNT``.
+
+    Why: geodem's step is many short parallel regions; with libgomp's default a thread spins
+    300,000 iterations waiting for the next one. When another busy process shares the cores
+    (a second run, a test suite, a compile), a spinning thread holds the core its partner
+    needs, and every region waits for a time slice: two 2-thread runs side by side on 2 cores
+    each ran at 4.6e4 element-steps/s (10^3 elements), 170x slower than alone. Measured on
+    2 cores (docs/performance.md, "Waiting threads"): a spin of 1000 keeps them at 5.0e6 each
+    and costs the quiet quick start ~5 %; ``OMP_WAIT_POLICY=passive`` (no spin) gives 8.1e6
+    each but costs the quiet quick start 46 %. The results do not change: waiting is not
+    arithmetic."""
+    if user_wait_choice() is not None or _libgomp_loaded():
+        return
+    os.environ["GOMP_SPINCOUNT"] = SPINCOUNT
+    os.environ[_ENV_MARK] = SPINCOUNT
+
+
+def describe_wait() -> dict:
+    """The OpenMP waiting setting in force and who made it (``geodem info``, manifest.json)."""
+    user = user_wait_choice()
+    if user is not None:
+        return {"setting": user, "chosen_by": "user"}
+    value = os.environ.get("GOMP_SPINCOUNT")
+    if value is None:
+        return {"setting": "libgomp default (GOMP_SPINCOUNT 300000)",
+                "chosen_by": "nobody: libgomp was loaded before geodem was imported"}
+    return {"setting": f"GOMP_SPINCOUNT={value}", "chosen_by": "geodem"}
+
+
 def layer() -> str:
     """The layer numba's parallel loops run on in this process (starting numba's threads if
     they have not started yet), e.g. ``omp``."""
@@ -64,9 +123,13 @@ def numba_threads() -> int:
 
 
 def describe() -> dict:
-    """The layer in use and where the choice came from (``geodem info``, manifest.json)."""
+    """The layer in use and where the choice came from, and on ``omp`` how idle threads wait
+    (``geodem info``, manifest.json)."""
     chosen_by = user_choice()
-    return {"layer": layer(), "chosen_by": chosen_by or "geodem (" + ", ".join(PRIORITY) + ")"}
+    out = {"layer": layer(), "chosen_by": chosen_by or "geodem (" + ", ".join(PRIORITY) + ")"}
+    if out["layer"] == "omp":
+        out["wait"] = describe_wait()
+    return out
 
 
 def slow_layer_note(name: str) -> str | None:

@@ -1082,7 +1082,8 @@ class Runner:
         prep, cfg = self.prep, self.cfg
         threads = _threads(prep.backend)
         session = {"started": _now(), "backend": prep.backend, "threads": threads,
-                   "threading_layer": _threading_layer(prep.backend), "command": self.argv,
+                   "threading_layer": _threading_layer(prep.backend),
+                   "omp_wait": _omp_wait(prep.backend), "command": self.argv,
                    "resumed_from_step": None if marker is None else marker["step"]}
         if marker is None:
             header = ("# geodem: resolved workflow (every default filled in); rerun with\n"
@@ -1099,6 +1100,7 @@ class Runner:
                 "backend": prep.backend,
                 "threads": threads,
                 "threading_layer": session["threading_layer"],
+                "omp_wait": session["omp_wait"],
                 "n_elements": int(self.built.state.n),
                 "dim": int(self.built.state.dim),
                 "dt": prep.plan.dt,
@@ -1273,6 +1275,15 @@ def _threading_layer(backend: str) -> str | None:
     from geodem import threads
 
     return threads.layer()
+
+
+def _omp_wait(backend: str) -> dict | None:
+    """How idle OpenMP threads wait (geodem.threads.choose_wait) on the omp layer, else None."""
+    if _threading_layer(backend) != "omp":
+        return None
+    from geodem import threads
+
+    return threads.describe_wait()
 
 
 def _slow_layer_note(backend: str) -> str | None:
