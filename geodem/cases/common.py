@@ -80,7 +80,8 @@ class PlatenTest(StepBase):
     def platens(self, ctx):
         """Geometry of the test from the model's reference positions: ``(st, ax, d, ref, top,
         bot, h0, height, area)`` (h0: platen-to-platen distance; area: cross-section, times
-        the thickness in 2-D)."""
+        the thickness in 2-D: surface to surface over the elements, or the box's where the
+        specimen's faces were cut, ``info["cut_section"]``)."""
         from geodem.core import groups
 
         st = ctx.state
@@ -90,8 +91,14 @@ class PlatenTest(StepBase):
         top, bot = groups.members(st, "top"), groups.members(st, "bottom")
         h0 = ref[top, ax].mean() - ref[bot, ax].mean()
         height = ref[:, ax].max() - ref[:, ax].min()
-        r = st.r[:, None]
-        widths = (ref + r).max(axis=0)[:ax] - (ref - r).min(axis=0)[:ax]  # surface to surface
+        cut = ctx.model.info.get("cut_section")
+        if cut is not None:
+            # faces cut from a repeated periodic cell: elements overhang them, the section is
+            # the box's (geodem.build.specimen.cut_section)
+            widths = np.asarray(cut, dtype=float)
+        else:
+            r = st.r[:, None]
+            widths = (ref + r).max(axis=0)[:ax] - (ref - r).min(axis=0)[:ax]  # surface to surface
         area = float(np.prod(widths)) * ((self.thickness or d) if st.dim == 2 else 1.0)
         return st, ax, d, ref, top, bot, h0, height, area
 

@@ -105,7 +105,7 @@ class Specimen(ModelBase):
         return out + material_problems(cfg, self.material, self.dim)
 
     def build(self, cfg):
-        from geodem.build.specimen import make_specimen, packing_notes
+        from geodem.build.specimen import cut_section, make_specimen, packing_notes
         from geodem.core import groups as grp
 
         sm = specimen_material(cfg, self.material, self.dim, self.d_mean)
@@ -133,6 +133,9 @@ class Specimen(ModelBase):
         info = {"diameter": self.d_mean, "size": list(self.size), "material": sm.label,
                 "material_warnings": list(sm.warnings) + packing_notes(rep),
                 "specimen_report": {k: v for k, v in rep.items() if k != "packing"}}
+        cut = cut_section(rep, self.size)
+        if cut is not None:
+            info["cut_section"] = cut
         if self.min_bonds:
             info["loose_removed"] = removed
         return BuiltModel(st, st.x.copy(), self.n_across(), info)

@@ -122,3 +122,44 @@ def test_a_tiled_specimen_is_balanced_over_its_cell(monkeypatch):
     assert rep["balanced"] and rep["unbalanced_ratio"] < 1e-3
     assert rep["steps"] == rep["balance_rounds"] * round(50 * cell)
     assert rep["steps"] < rep["balance_rounds"] * 50 * 12  # the box is 12 d_mean tall
+
+
+def _ucs_specimen(tmp_path):
+    """The model of a small 3-D UCS workflow (library marble, 6 x 6 x 12 d_mean) and its
+    platen test's area."""
+    import types
+
+    import yaml
+
+    from geodem.workflow.schema import validate_document
+    from geodem.workflow.yamlio import load_document
+
+    doc = {"metadata": {"name": "ucs"},
+           "model": {"type": "specimen", "dim": 3, "size": [0.06, 0.06, 0.12], "d_mean": 0.01,
+                     "material": "rock"},
+           "materials": {"rock": {"library": "marble"}},
+           "steps": [{"kind": "uniaxial"}]}
+    path = tmp_path / "ucs.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    cfg = validate_document(load_document(path))
+    built = cfg.model.build(cfg)
+    ctx = types.SimpleNamespace(state=built.state, model=built)
+    return built, cfg.steps[0].platens(ctx)[-1]
+
+
+def test_a_cut_face_specimen_is_measured_over_its_box(tmp_path, monkeypatch):
+    """Faces cut from repeated cells: elements overhang the box, so the test takes the box's
+    section (0.06 x 0.06 m), not the elements' (larger by up to a diameter per width); a box
+    packed whole keeps the section over its elements, which is the box's (flat faces)."""
+    whole, whole_area = _ucs_specimen(tmp_path)
+    assert "cut_section" not in whole.info
+    assert whole_area == pytest.approx(0.0036, rel=1e-3)  # flat faces on the box
+
+    monkeypatch.setattr(isotropic, "TILE_ABOVE", 0)
+    monkeypatch.setattr(isotropic.tile_counts, "__defaults__", (300,))
+    cut, cut_area = _ucs_specimen(tmp_path)
+    assert cut.info["cut_section"] == [0.06, 0.06]
+    assert cut_area == pytest.approx(0.0036, rel=1e-12)
+    st = cut.state
+    over = (st.x + st.r[:, None]).max(axis=0) - (st.x - st.r[:, None]).min(axis=0)
+    assert over[0] * over[1] > 1.05 * cut_area  # what the elements' extent would have read
