@@ -51,6 +51,13 @@ RAMP, HOLD = 4000, 6000  # steps
 def exact(kn: float, ks: float, d: float = D) -> tuple[float, float]:
     """``(E_z, nu_zx)`` of the infinite FCC lattice of ``geodem.build.lattice.fcc_lattice``
     with contact springs ``kn``, ``ks`` [N/m] (see the module docstring)."""
+    e = compliance(kn, ks, d)
+    return 1.0 / e[2], -0.5 * (e[0] + e[1]) / e[2]
+
+
+def compliance(kn: float, ks: float, d: float = D) -> np.ndarray:
+    """The strain of the infinite lattice under a unit uniaxial stress along z [1/Pa]:
+    ``(e_xx, e_yy, e_zz, e_yz, e_xz, e_xy)``, tensor components (not doubled)."""
     from geodem.build.lattice import fcc_lattice
 
     x = fcc_lattice(5, 5, 5, d)
@@ -74,8 +81,7 @@ def exact(kn: float, ks: float, d: float = D) -> tuple[float, float]:
         sig = np.einsum("ijkl,kl->ij", cijkl, eps)
         sig = 0.5 * (sig + sig.T)
         m[:, b] = [sig[i, j] for i, j in pairs]
-    e = np.linalg.solve(m, np.eye(6)[2])
-    return 1.0 / e[2], -0.5 * (e[0] + e[1]) / e[2]
+    return np.linalg.solve(m, np.eye(6)[2])
 
 
 # ------------------------------------------------------------------------------- geodem
