@@ -85,20 +85,29 @@ def compliance(kn: float, ks: float, d: float = D) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------- geodem
-def run_geodem(x: np.ndarray, kn: float, ks: float) -> dict:
-    """E and nu of the block in geodem (numba), springs ``kn``, ``ks`` of the contact."""
+def gripped_block(x: np.ndarray, kn: float, ks: float, xb: float = 1.0, fs0: float = 1.0e12,
+                  mu: float = 0.5):
+    """The bonded block in geodem, springs ``kn``, ``ks`` of the contact (the elements' twice
+    that), bond strengths ``xb`` [m], ``fs0`` [N]: its bottom layer held in z (one sphere in
+    x, y, z), its top layer in z. Returns ``(state, top mask, height)``."""
     from geodem.build.lattice import bonded_state
-    from geodem.core import timestep
-    from geodem.core.engine import Simulation
 
-    st = bonded_state(x, 0.5 * D, density=RHO, kn=2.0 * kn, ks=2.0 * ks, xb=1.0, fs0=1.0e12,
-                      mu=0.5, gap=0.01 * D)
+    st = bonded_state(x, 0.5 * D, density=RHO, kn=2.0 * kn, ks=2.0 * ks, xb=xb, fs0=fs0,
+                      mu=mu, gap=0.01 * D)
     z = x[:, 2]
     bottom, top = z < z.min() + 0.1 * D, z > z.max() - 0.1 * D
-    height = z.max() - z.min()
     st.free[bottom, 2] = 0.0
     st.free[np.flatnonzero(bottom)[0]] = 0.0
     st.free[top, 2] = 0.0
+    return st, top, z.max() - z.min()
+
+
+def run_geodem(x: np.ndarray, kn: float, ks: float) -> dict:
+    """E and nu of the block in geodem (numba), springs ``kn``, ``ks`` of the contact."""
+    from geodem.core import timestep
+    from geodem.core.engine import Simulation
+
+    st, top, height = gripped_block(x, kn, ks)
     sim = Simulation(st, backend="numba", monitor_every=0)
     n_across = height / D
     st = sim.sync()
@@ -129,14 +138,8 @@ def _moduli(x, x0, force, top, height) -> dict:
 
 
 # --------------------------------------------------------------------------------- Yade
-YADE = textwrap.dedent('''
-    import json, sys
-    import numpy as np
-    x = np.load(sys.argv[1]); out = sys.argv[2]
-    eps, ramp, hold, d = {eps!r}, {ramp!r}, {hold!r}, {d!r}
-    O.materials.append(JCFpmMat(type=1, density={rho!r}, young={young!r}, poisson={poisson!r},
-                                frictionAngle=radians(26.6), tensileStrength=1e15,
-                                cohesion=1e15))
+#: Yade: the spheres at ``x`` (diameter ``d``) and the grips of :func:`gripped_block`
+YADE_BLOCK = textwrap.dedent('''
     for p in x:
         O.bodies.append(sphere(tuple(p), d / 2))
     z = x[:, 2]
@@ -150,13 +153,24 @@ YADE = textwrap.dedent('''
     O.bodies[bottom[0]].state.blockedDOFs = "xyzXYZ"
     for i in top:
         O.bodies[i].state.blockedDOFs = "zXYZ"
+    ''')
+#: Yade: JCFpm's contact detection, bonding (first step) and law
+YADE_LAW = ("[ForceResetter(), InsertionSortCollider([Bo1_Sphere_Aabb(aabbEnlargeFactor=1.05)]), "
+            "InteractionLoop([Ig2_Sphere_Sphere_ScGeom(interactionDetectionFactor=1.05)], "
+            "[Ip2_JCFpmMat_JCFpmMat_JCFpmPhys(cohesiveTresholdIteration=1)], "
+            "[Law2_ScGeom_JCFpmPhys_JointedCohesiveFrictionalPM()])]")
+
+YADE = textwrap.dedent('''
+    import json, sys
+    import numpy as np
+    x = np.load(sys.argv[1]); out = sys.argv[2]
+    eps, ramp, hold, d = {eps!r}, {ramp!r}, {hold!r}, {d!r}
+    O.materials.append(JCFpmMat(type=1, density={rho!r}, young={young!r}, poisson={poisson!r},
+                                frictionAngle=radians(26.6), tensileStrength=1e15,
+                                cohesion=1e15))
+    {block}
     newton = NewtonIntegrator(damping=0.0)
-    O.engines = [ForceResetter(),
-                 InsertionSortCollider([Bo1_Sphere_Aabb(aabbEnlargeFactor=1.05)]),
-                 InteractionLoop([Ig2_Sphere_Sphere_ScGeom(interactionDetectionFactor=1.05)],
-                                 [Ip2_JCFpmMat_JCFpmMat_JCFpmPhys(cohesiveTresholdIteration=1)],
-                                 [Law2_ScGeom_JCFpmPhys_JointedCohesiveFrictionalPM()]),
-                 newton]
+    O.engines = {law} + [newton]
     O.dt = 0.5 * PWaveTimeStep()
     O.step()
     kn = [i.phys.kn for i in O.interactions if i.isReal]
@@ -172,7 +186,8 @@ YADE = textwrap.dedent('''
     f = np.array([O.forces.f(b.id) for b in O.bodies])
     np.savez(out, x=pos, f=f, top=np.array(top), kn=np.array(kn), ks=np.array(ks),
              bonds=sum(1 for i in O.interactions if i.isReal and i.phys.isCohesive))
-''').format(eps=EPS, ramp=RAMP, hold=HOLD, d=D, rho=RHO, young=YOUNG, poisson=POISSON)
+''').format(eps=EPS, ramp=RAMP, hold=HOLD, d=D, rho=RHO, young=YOUNG, poisson=POISSON,
+         block=YADE_BLOCK.strip(), law=YADE_LAW)
 
 
 def run_yade(x: np.ndarray, threads: int, tmp: Path) -> dict:

@@ -38,7 +38,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from elastic import D, POISSON, RHO, YOUNG, compliance  # noqa: E402
+from elastic import (D, POISSON, RHO, YADE_BLOCK, YADE_LAW, YOUNG, compliance,  # noqa: E402
+                     gripped_block)
 
 PHI = math.atan(0.5)  # friction angle of the bonds [rad]: mu = 0.5 in geodem
 E_PEAK = 2.0e-4  # the axial strain at which the bonds of the lattice reach their strength
@@ -110,17 +111,10 @@ def _area(top) -> float:
 # ------------------------------------------------------------------------------- geodem
 def run_geodem(x: np.ndarray, kn: float, ks: float, fn_max: float, fs_max: float) -> dict:
     """The peak stress [Pa] of the block pulled apart in geodem (numba) and its strain."""
-    from geodem.build.lattice import bonded_state
     from geodem.core.engine import Simulation
 
-    st = bonded_state(x, 0.5 * D, density=RHO, kn=2.0 * kn, ks=2.0 * ks, xb=fn_max / (2.0 * kn),
-                      fs0=fs_max, mu=math.tan(PHI), gap=0.01 * D)
-    z = x[:, 2]
-    bottom, top = z < z.min() + 0.1 * D, z > z.max() - 0.1 * D
-    height = z.max() - z.min()
-    st.free[bottom, 2] = 0.0
-    st.free[np.flatnonzero(bottom)[0]] = 0.0
-    st.free[top, 2] = 0.0
+    st, top, height = gripped_block(x, kn, ks, xb=fn_max / (2.0 * kn), fs0=fs_max,
+                                    mu=math.tan(PHI))
     sim = Simulation(st, backend="numba", monitor_every=0)
     st = sim.sync()
     speed, duration = _loading(height, kn)
@@ -152,35 +146,20 @@ YADE = textwrap.dedent('''
     O.materials.append(JCFpmMat(type=1, density={rho!r}, young={young!r}, poisson={poisson!r},
                                 frictionAngle={phi!r}, tensileStrength=float(sys.argv[5]),
                                 cohesion=float(sys.argv[6])))
-    for p in x:
-        O.bodies.append(sphere(tuple(p), d / 2))
-    z = x[:, 2]
-    bottom = [i for i in range(len(x)) if z[i] < z.min() + 0.1 * d]
-    top = [i for i in range(len(x)) if z[i] > z.max() - 0.1 * d]
-    for b in O.bodies:
-        b.state.blockedDOFs = "XYZ"
-    for i in bottom:
-        O.bodies[i].state.blockedDOFs = "zXYZ"
-    O.bodies[bottom[0]].state.blockedDOFs = "xyzXYZ"
-    for i in top:
-        O.bodies[i].state.blockedDOFs = "zXYZ"
+    {block}
     rows = []
     def record():
         rows.append((O.time, -sum(O.forces.f(i)[2] for i in top)))
-    O.engines = [ForceResetter(),
-                 InsertionSortCollider([Bo1_Sphere_Aabb(aabbEnlargeFactor=1.05)]),
-                 InteractionLoop([Ig2_Sphere_Sphere_ScGeom(interactionDetectionFactor=1.05)],
-                                 [Ip2_JCFpmMat_JCFpmMat_JCFpmPhys(cohesiveTresholdIteration=1)],
-                                 [Law2_ScGeom_JCFpmPhys_JointedCohesiveFrictionalPM()]),
-                 NewtonIntegrator(damping=0.0),
-                 PyRunner(command="record()", iterPeriod=sample)]
+    O.engines = {law} + [NewtonIntegrator(damping=0.0),
+                         PyRunner(command="record()", iterPeriod=sample)]
     O.dt = 0.5 * PWaveTimeStep()
     for i in top:
         O.bodies[i].state.vel = (0, 0, speed)
     O.run(int(duration / O.dt) + 1, True)
     np.savez(out, rows=np.array(rows), top=np.array(top), dt=O.dt,
              kn=np.array([i.phys.kn for i in O.interactions if i.isReal]))
-''').format(d=D, sample=SAMPLE, rho=RHO, young=YOUNG, poisson=POISSON, phi=PHI)
+''').format(d=D, sample=SAMPLE, rho=RHO, young=YOUNG, poisson=POISSON, phi=PHI,
+         block=YADE_BLOCK.strip(), law=YADE_LAW)
 
 
 def run_yade(x: np.ndarray, threads: int, tmp: Path, kn: float, fn_max: float,
@@ -240,6 +219,9 @@ def main(argv=None):
                 print(f"{name:>13}: peak {r['peak_stress']:.4g} Pa ({r['peak_stress'] / exact:.4f}"
                       f" x exact) at strain {r['peak_strain']:.4g}; after it "
                       f"{r['final_stress']:.3g} Pa")
+        if yade is not None and abs(yade["kn"] / kn - 1.0) > 1e-9:
+            print(f"   Yade's bonds have kn = {yade['kn']:.6g} N/m, not E R = {kn:.6g}: the "
+                  "two codes do not run the same springs")
         if yade is None:
             print("   Yade JCFpm: not run (apt-get install -y yade)")
         else:
