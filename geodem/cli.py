@@ -643,6 +643,9 @@ RollingStiffnessOpt = _float_option(
 DiscDiameterOpt = _float_option(
     "--disc-diameter", 0.01, 10.0, "Diameter of the Brazilian check disc [m] (default 40 "
                                    "d_mean in 2-D, 10 in 3-D, or as stored).")
+DiscThicknessOpt = _float_option(
+    "--disc-thickness", 0.001, 10.0, "3-D: thickness of the Brazilian check disc [m] "
+                                     "(default half its diameter, or as stored).")
 DiscDropOpt = _float_option(
     "--disc-drop", 0.5, 0.99, "The Brazilian check stops when the load falls below this x "
                               "its peak with a crack near the centre (default 0.9 for "
@@ -676,11 +679,17 @@ def _rotation_structure(bond_moment, rolling_friction, rolling_stiffness=None,
     return {"rotation": True, **{k: base[k] if v is None else v for k, v in given.items()}}
 
 
-def _disc_options(diameter, drop, stored: dict | None = None) -> dict:
-    """The Brazilian check's ``disc_diameter`` and ``disc_drop`` for a CalibrationSpec: the
-    options given, else the stored specimen's, else the spec's defaults (absent)."""
+DISC_KEYS = ("disc_diameter", "disc_drop", "disc_thickness")
+
+
+def _disc_options(diameter, drop, stored: dict | None = None, thickness=None) -> dict:
+    """The Brazilian check's ``disc_diameter``, ``disc_drop`` and ``disc_thickness`` for a
+    CalibrationSpec: the options given, else the stored specimen's, else the spec's defaults
+    (absent). A diameter given without a thickness takes the default thickness."""
     out = {}
-    for key, value in (("disc_diameter", diameter), ("disc_drop", drop)):
+    if diameter is not None and thickness is None:
+        stored = {k: v for k, v in (stored or {}).items() if k != "disc_thickness"}
+    for key, value in zip(DISC_KEYS, (diameter, drop, thickness)):
         if value is None and stored:
             value = stored.get(key)
         if value is not None:
@@ -714,7 +723,7 @@ def _stored_recipe(mat, dim, *options):
         return None
     structure = {k: sp[k] for k in STRUCTURE_KEYS if sp.get(k) is not None}
     structure.setdefault("packing", "isotropic")
-    disc = {k: float(sp[k]) for k in ("disc_diameter", "disc_drop") if sp.get(k) is not None}
+    disc = {k: float(sp[k]) for k in DISC_KEYS if sp.get(k) is not None}
     return structure, sp.get("friction_test") is not None, int(sp.get("packings", 1)), disc
 
 
@@ -791,6 +800,7 @@ def calibrate_cmd(
     jobs: JobsOpt = None,
     fit: FitOpt = None,
     disc_diameter: DiscDiameterOpt = None,
+    disc_thickness: DiscThicknessOpt = None,
     disc_drop: DiscDropOpt = None,
     recipe: Annotated[Optional[str], typer.Option(
         "--recipe", help="'library': the library's recipe for this rock (2-D: turning "
@@ -850,7 +860,7 @@ def calibrate_cmd(
                      "bond_strength_weibull": bond_weibull,
                      **_rotation_structure(bond_moment, rolling_friction, rolling_stiffness)}
         friction, packings, disc = bool(friction), packings or 1, {}
-    disc.update(_disc_options(disc_diameter, disc_drop))
+    disc.update(_disc_options(disc_diameter, disc_drop, thickness=disc_thickness))
     try:
         spec = CalibrationSpec(targets=mat.values(), name=mat.name, dim=dim, d_mean=d_mean,
                                ucs_size=size, seed=seed, iterations=iterations,
@@ -971,6 +981,7 @@ def rock_cmd(
     jobs: JobsOpt = None,
     fit: FitOpt = None,
     disc_diameter: DiscDiameterOpt = None,
+    disc_thickness: DiscThicknessOpt = None,
     disc_drop: DiscDropOpt = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
@@ -1020,7 +1031,8 @@ def rock_cmd(
                                  d_mean=float(sp.get("d_mean", 0.01 if dim == 3 else 0.005)),
                                  ucs_size=size, seed=first + k, iterations=1,
                                  structure=structure, fit=fit or sp.get("fit", "window"),
-                                 **_disc_options(disc_diameter, disc_drop, sp))
+                                 **_disc_options(disc_diameter, disc_drop, sp,
+                                                 disc_thickness))
                  for k in range(packings)]
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
@@ -1048,7 +1060,8 @@ def rock_cmd(
 
         path = material_path(material)
         check = save_brazilian_check(path, dim, [r["brazilian"] for r in runs],
-                                     specs[0].disc_diameter, specs[0].disc_drop)
+                                     specs[0].disc_diameter, specs[0].disc_drop,
+                                     specs[0].disc_thickness)
         con.print(f"saved the Brazilian check ({check['over_target']:.3g} x Tu, disc "
                   f"{specs[0].disc_diameter:g} m) into {path}", highlight=False)
         if packings == int(sp.get("packings") or 1) > 1 and first == int(sp.get("seed", 0)):

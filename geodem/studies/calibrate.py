@@ -309,6 +309,10 @@ class CalibrationSpec:
     # elements (the turning marble split 10-across discs at 1.38 x Tu, 20-across ones at
     # 1.27 x: docs/calibration.md, "Friction angle in 3-D"), 10 for translating ones
     disc_diameter: float | None = None
+    # 3-D: the disc's thickness [m]; None: half its diameter (ISRM). A thinner disc (ASTM
+    # D3967 allows 0.2-0.75 D) makes a disc 40 across affordable in 3-D, where discs 10-20
+    # across of a rock of high Cu / Tu split late (docs/calibration.md, "Friction angle in 3-D")
+    disc_thickness: float | None = None
     # the Brazilian check stops at a load drop below disc_drop x its peak with a crack near
     # the centre (the brazilian step's drop); None: 0.9 for turning elements (it catches the
     # split of a disc whose halves stay between the platens), else 0.8 (brazilian.yaml's)
@@ -359,6 +363,13 @@ class CalibrationSpec:
         if self.disc_diameter is None:
             across = 40.0 if self.dim == 2 else 20.0 if self.structure.get("rotation") else 10.0
             self.disc_diameter = across * float(self.d_mean)
+        if self.disc_thickness is not None and self.dim == 2:
+            raise ValueError("disc_thickness is for 3-D discs (a 2-D disc is d_mean thick)")
+        if self.disc_thickness is not None and not (
+                self.d_mean <= self.disc_thickness <= self.disc_diameter):
+            raise ValueError(f"disc_thickness = {self.disc_thickness!r} m: allowed d_mean "
+                             f"({self.d_mean:g} m) to the disc's diameter "
+                             f"({self.disc_diameter:g} m)")
         if self.disc_drop is None:
             self.disc_drop = 0.9 if self.structure.get("rotation") else 0.8
         if not 0.5 <= float(self.disc_drop) < 1.0:
@@ -766,11 +777,16 @@ def _triaxial_workflow(spec, el):
             "outputs": {"observables": {"every": 1000}}}
 
 
+def disc_thickness(spec) -> float:
+    """The 3-D check disc's thickness [m]: ``spec.disc_thickness``, else half its diameter."""
+    return float(spec.disc_thickness or 0.5 * spec.disc_diameter)
+
+
 def _brazilian_workflow(spec, el):
     model = {"type": "brazilian_disc", "dim": spec.dim, "diameter": spec.disc_diameter,
              "d_mean": spec.d_mean, "distri_rate": spec.distri_rate, "material": "rock"}
     if spec.dim == 3:
-        model["thickness"] = 0.5 * spec.disc_diameter
+        model["thickness"] = disc_thickness(spec)
     return {"metadata": {"name": "calibration_brazilian", "seed": spec.seed,
                          "description": f"calibration of {spec.name}: Brazilian test"},
             "model": model,
@@ -1079,6 +1095,8 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         "specimen": {"d_mean": spec.d_mean, "ucs_size": list(spec.ucs_size),
                      **spec.structure,
                      "disc_diameter": spec.disc_diameter, "disc_drop": spec.disc_drop,
+                     **({"disc_thickness": spec.disc_thickness}
+                        if spec.disc_thickness is not None else {}),
                      "distri_rate": spec.distri_rate,
                      "seed": spec.seed, "packings": spec.packings, "fit": spec.fit,
                      "strain_rate": spec.strain_rate,
@@ -1186,7 +1204,7 @@ def save_calibration(path, summary: dict) -> None:
 
 
 def save_brazilian_check(path, dim: int, checks: list, disc_diameter: float,
-                         disc_drop: float) -> dict:
+                         disc_drop: float, disc_thickness: float | None = None) -> dict:
     """Replace the Brazilian check of the stored ``calibrated.<dim>d`` record of the material
     file ``path`` by ``checks`` (:func:`brazilian_check` on one or more packings of the stored
     element parameters: their mean) on a disc of ``disc_diameter`` [m] stopped at
@@ -1202,6 +1220,9 @@ def save_brazilian_check(path, dim: int, checks: list, disc_diameter: float,
         rec = old[f"{dim}d"]
         rec["brazilian"] = check
         rec["specimen"].update(disc_diameter=float(disc_diameter), disc_drop=float(disc_drop))
+        rec["specimen"].pop("disc_thickness", None)
+        if disc_thickness is not None:
+            rec["specimen"]["disc_thickness"] = float(disc_thickness)
     _update_calibrated(path, update)
     return check
 

@@ -93,6 +93,27 @@ def test_the_brazilian_check_disc_follows_the_spec_and_the_options():
     assert _disc_options(None, None) == {} and _disc_options(None, 0.95) == {"disc_drop": 0.95}
 
 
+def test_a_3d_check_disc_may_be_thinner_than_half_its_diameter():
+    """``--disc-thickness`` (3-D): the disc 40 across at a quarter of its diameter thick; a
+    stored thickness is kept unless another diameter is given without one; refused in 2-D and
+    outside d_mean to the diameter."""
+    from geodem.cli import _disc_options
+
+    three = dict(targets=TARGETS, dim=3, d_mean=0.01, ucs_size=(0.1, 0.1, 0.2))
+    wf = C._brazilian_workflow(C.CalibrationSpec(**three, disc_diameter=0.4), {"kn": 1.0})
+    assert wf["model"]["thickness"] == pytest.approx(0.2)  # half the diameter by default
+    thin = C.CalibrationSpec(**three, disc_diameter=0.4, disc_thickness=0.1)
+    assert C._brazilian_workflow(thin, {"kn": 1.0})["model"]["thickness"] == 0.1
+    stored = {"disc_diameter": 0.4, "disc_thickness": 0.1, "disc_drop": 0.9}
+    assert _disc_options(None, None, stored) == stored
+    assert _disc_options(0.2, None, stored) == {"disc_diameter": 0.2, "disc_drop": 0.9}
+    assert _disc_options(0.2, None, stored, 0.05)["disc_thickness"] == 0.05
+    with pytest.raises(ValueError, match="disc_thickness is for 3-D discs"):
+        C.CalibrationSpec(targets=TARGETS, disc_thickness=0.01)
+    with pytest.raises(ValueError, match=r"disc_thickness = 0.005 m: allowed d_mean \(0.01 m\)"):
+        C.CalibrationSpec(**three, disc_thickness=0.005)
+
+
 @pytest.mark.parametrize("prefer", ["Cu", "Tu"])
 def test_unreachable_strength_ratio_is_reported(tmp_path, prefer):
     # Cu / Tu <= about 40 on this packing (rho_s <= 50); 100 cannot be reached
