@@ -82,8 +82,8 @@ def choose_wait() -> None:
     needs, and every region waits for a time slice: two 2-thread runs side by side on 2 cores
     each ran at 4.6e4 element-steps/s (10^3 elements) against 1.34e7 alone. Measured on
     2 cores (docs/performance.md, "Waiting threads"): a spin of 1000 keeps them at 5.0e6 each
-    and costs the quiet quick start ~5 %; ``OMP_WAIT_POLICY=passive`` (no spin) gives 8.1e6
-    each but costs the quiet quick start 46 %. The results do not change: waiting is not
+    and costs the quiet quick start ~7 %; ``OMP_WAIT_POLICY=passive`` (no spin) gives 8.1e6
+    each but costs the quiet quick start ~60 %. The results do not change: waiting is not
     arithmetic."""
     if user_wait_choice() is not None or _libgomp_loaded():
         return
