@@ -62,14 +62,21 @@ def user_wait_choice() -> str | None:
     return None
 
 
-def _libgomp_loaded() -> bool:
-    """Whether GNU libgomp is already in this process (it reads its settings when it loads,
-    so a setting made later has no effect). Linux only; elsewhere False."""
+def _loaded_libraries() -> list[str]:
+    """The paths of the shared libraries loaded in this process, from ``/proc/self/maps``
+    (Linux; elsewhere none)."""
     try:
         with open("/proc/self/maps") as maps:
-            return any("libgomp" in line for line in maps)
+            return sorted({line.split()[-1] for line in maps if line.rstrip().endswith(".so")
+                           or ".so." in line})
     except OSError:
-        return False
+        return []
+
+
+def _libgomp_loaded() -> bool:
+    """Whether GNU libgomp is already in this process (it reads its settings when it loads,
+    so a setting made later has no effect)."""
+    return any("libgomp" in os.path.basename(p) for p in _loaded_libraries())
 
 
 def choose_wait() -> None:
@@ -157,14 +164,8 @@ def _blas_libraries() -> list:
     ``/proc/self/maps`` (Linux; elsewhere none is found)."""
     import ctypes
 
-    try:
-        with open("/proc/self/maps") as maps:
-            paths = sorted({line.split()[-1] for line in maps if line.rstrip().endswith(".so")
-                            or ".so." in line})
-    except OSError:
-        return []
     out = []
-    for path in paths:
+    for path in _loaded_libraries():
         name = os.path.basename(path).lower()
         if not path.startswith("/") or not ("openblas" in name or "mkl_rt" in name):
             continue

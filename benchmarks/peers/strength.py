@@ -73,13 +73,11 @@ def bond_strengths(case: str, kn: float):
     ks = POISSON * kn
     strain_z = compliance(kn, ks)[2]
     _, fn, fs = bond_loads(kn, ks)
-    sigma = E_PEAK / strain_z  # the stress at E_PEAK
-    k = int(np.argmax(fn))
-    fn, fs, sigma = float(fn[k]), float(fs[k]), float(sigma)
+    sigma = float(E_PEAK / strain_z)  # the stress at E_PEAK
     if case == "tension":
-        fn_max = fn * sigma
+        fn_max = float(fn.max()) * sigma  # the most stretched bonds
         return fn_max, 1e6 * fn_max
-    fs_max = (fs + fn * math.tan(PHI)) * sigma
+    fs_max = float((fs + fn * math.tan(PHI)).max()) * sigma  # the nearest to Mohr-Coulomb
     return 1e6 * fs_max, fs_max
 
 

@@ -1081,9 +1081,9 @@ class Runner:
     def _write_config_manifest(self, marker):
         prep, cfg = self.prep, self.cfg
         threads = _threads(prep.backend)
+        layer = _threading_layer(prep.backend)
         session = {"started": _now(), "backend": prep.backend, "threads": threads,
-                   "threading_layer": _threading_layer(prep.backend),
-                   "omp_wait": _omp_wait(prep.backend), "command": self.argv,
+                   "threading_layer": layer, "omp_wait": _omp_wait(layer), "command": self.argv,
                    "resumed_from_step": None if marker is None else marker["step"]}
         if marker is None:
             header = ("# geodem: resolved workflow (every default filled in); rerun with\n"
@@ -1277,9 +1277,9 @@ def _threading_layer(backend: str) -> str | None:
     return threads.layer()
 
 
-def _omp_wait(backend: str) -> dict | None:
+def _omp_wait(layer: str | None) -> dict | None:
     """How idle OpenMP threads wait (geodem.threads.choose_wait) on the omp layer, else None."""
-    if _threading_layer(backend) != "omp":
+    if layer != "omp":
         return None
     from geodem import threads
 
