@@ -128,12 +128,15 @@ def resolution_warnings(name: str, cal: dict, d_mean: float | None, dim: int) ->
 def material_rotation(cfg, model) -> dict | None:
     """The rotation option of the materials ``model`` uses (``rotation``, ``rolling_friction``,
     ``bond_moment``, ``rolling_stiffness`` of their element parameters): None when none asks
-    for it, else ``{"rolling_friction": mu_r, "bond_moment": b, "rolling_stiffness": beta}``,
-    and, where the turning materials differ in those values, ``"per_material"``: material
-    name -> ``(mu_r, b, beta, mu)`` with ``mu`` its element friction (how
-    :func:`apply_material_rotation` tells the elements apart). Rotation itself is a property
-    of the whole model (the engine turns every element or none), so turning and translating
-    materials cannot be mixed; a ``BuildError`` names the first that differs."""
+    for it, else ``{"rolling_friction": mu_r, "bond_moment": b, "rolling_stiffness": beta}``
+    (the largest of each over the turning materials), and, where the materials differ in those
+    values or some translate, ``"per_material"``: material name -> ``(mu_r, b, beta, mu,
+    turns)`` with ``mu`` its element friction (how :func:`apply_material_rotation` tells the
+    elements apart). The engine gives every element of such a model rotational degrees of
+    freedom; the elements of a translating material (``rotation`` false) are held from turning,
+    which leaves their own contacts exactly as on translating elements (a contact's rolling
+    moment comes from the elements' rotations only), and take the largest values as walls do,
+    so that a contact with a turning element takes that element's."""
     dim = getattr(model, "dim", None)
     if dim not in (2, 3):
         return None
@@ -142,7 +145,8 @@ def material_rotation(cfg, model) -> dict | None:
         if name in seen or name not in cfg.materials:
             continue
         try:
-            el = specimen_material(cfg, name, dim).element or {}
+            # (any size serves: the options read are the same at every size)
+            el = specimen_material(cfg, name, dim, d_mean=1.0).element or {}
         except ValueError:
             continue  # the build reports it
         beta = el.get("rolling_stiffness")
@@ -153,27 +157,19 @@ def material_rotation(cfg, model) -> dict | None:
     wanted = {v for v in seen.values()}
     if wanted <= {None}:
         return None
-    if None in wanted:
-        first = next(n for n, v in seen.items() if v != next(iter(seen.values())))
-
-        def said(v):
-            return "rotation: false" if v is None else "rotation: true"
-
-        listed = ", ".join(f"{n!r} ({said(v)})" for n, v in seen.items())
-        raise BuildError(("materials", first), "rotation is a property of the whole model (every "
-                         f"element turns or none): the materials {listed} differ; allowed: "
-                         "turning elements in every material of the model, or in none")
-    mu_r, mb, beta = (max(v[k] for v in wanted) for k in range(3))
+    turning = wanted - {None}
+    mu_r, mb, beta = (max(v[k] for v in turning) for k in range(3))
     out = {"rolling_friction": mu_r, "bond_moment": mb, "rolling_stiffness": beta}
     if len(wanted) > 1:
         mus = [friction[n] for n in seen]
         if None in mus or len(set(mus)) < len(mus):
-            raise BuildError(("materials",), "the model's turning materials differ in "
+            raise BuildError(("materials",), "the model's materials differ in rotation, "
                              "rolling_friction, bond_moment or rolling_stiffness, and their "
                              "elements are told apart by their element friction mu, which "
                              f"{'is unknown for one' if None in mus else 'two share'}; allowed: "
                              "one set of those values, or a different mu for each material")
-        out["per_material"] = {n: seen[n] + (float(friction[n]),) for n in seen}
+        out["per_material"] = {n: (v if v is not None else (mu_r, mb, beta))
+                               + (float(friction[n]), v is not None) for n, v in seen.items()}
     return out
 
 
@@ -188,17 +184,29 @@ def rotation_arrays(rot: dict, mu) -> tuple:
     mu = np.asarray(mu, dtype=np.float64)
     out = [np.full(mu.shape, rot[k]) for k in ("rolling_friction", "bond_moment",
                                                 "rolling_stiffness")]
-    for mu_r, mb, beta, mu_m in rot["per_material"].values():
+    for mu_r, mb, beta, mu_m, _ in rot["per_material"].values():
         mine = mu == mu_m
         for a, v in zip(out, (mu_r, mb, beta)):
             a[mine] = v
     return tuple(out)
 
 
+def translating_elements(rot: dict, mu) -> np.ndarray:
+    """Mask of the elements of the translating materials of a model that mixes them with
+    turning ones (:func:`material_rotation`), told apart by their element friction ``mu``."""
+    mu = np.asarray(mu, dtype=np.float64)
+    held = np.zeros(mu.shape, dtype=bool)
+    for *_, mu_m, turns in (rot.get("per_material") or {}).values():
+        if not turns:
+            held |= mu == mu_m
+    return held
+
+
 def apply_material_rotation(cfg, built: BuiltModel) -> None:
     """Switch on the materials' rotation (:func:`material_rotation`) for the built model:
-    every element turns (walls and platens, being fixed or prescribed, do not), with the
-    materials' rolling friction, moment-resisting bonds and rolling stiffness (per element,
+    every element turns (walls and platens, being fixed or prescribed, do not; nor do the
+    elements of a translating material beside turning ones), with the materials' rolling
+    friction, moment-resisting bonds and rolling stiffness (per element,
     :func:`rotation_arrays`, where the materials differ); recorded in ``built.info``."""
     rot = material_rotation(cfg, cfg.model)
     if rot is None:
@@ -211,11 +219,15 @@ def apply_material_rotation(cfg, built: BuiltModel) -> None:
                                      "one of the two")
     mu_r, mb, beta = rotation_arrays(rot, built.state.mu)
     enable_rotation(built.state, mu_r=mu_r, bond_moment=mb, rolling_stiffness=beta)
+    held = translating_elements(rot, built.state.mu)
+    built.state.rfree[held] = 0.0
     built.info["rotation"] = {k: v for k, v in rot.items() if k != "per_material"}
     if "per_material" in rot:
+        mu = np.asarray(built.state.mu)
         built.info["rotation"]["per_material"] = {
-            n: {"rolling_friction": v[0], "bond_moment": v[1], "rolling_stiffness": v[2],
-                "mu": v[3], "elements": int(np.sum(np.asarray(built.state.mu) == v[3]))}
+            n: ({"rolling_friction": v[0], "bond_moment": v[1], "rolling_stiffness": v[2]}
+                if v[4] else {"turns": False})
+            | {"mu": v[3], "elements": int(np.sum(mu == v[3]))}
             for n, v in rot["per_material"].items()}
 
 

@@ -212,8 +212,9 @@ class _Structure(_MaterialInfo):
                                         "surface gap is below bond_gap x d_mean are bonded "
                                         "(default 0.01; larger: more bonds per element)")
     rotation: Optional[bool] = F(
-        None, description="Elements turn (rotational degrees of freedom, for every element "
-                          "of the model); unset or false: MatDEM's translation-only elements")
+        None, description="Elements turn (rotational degrees of freedom); unset or false: "
+                          "MatDEM's translation-only elements (beside a turning material "
+                          "they are held from turning, their contacts unchanged)")
     rolling_friction: Optional[float] = F(
         None, ge=0, le=2, description="With rotation: rolling-resistance coefficient mu_r of "
                                       "contacts in compression (moment up to mu_r R* |Fn|, "

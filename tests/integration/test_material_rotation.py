@@ -1,7 +1,9 @@
 """Rotation as a material option (``rotation``, ``rolling_friction``, ``bond_moment``): the
 runner turns every element of a model whose material asks for it, walls and platens held; the
 options are refused without rotation, and materials of one model must agree."""
+import json
 import types
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -66,18 +68,21 @@ def test_rolling_options_need_rotation(tmp_path, key):
         prepare(_ucs(tmp_path, **{key: 0.5}), backend="numba")
 
 
-def test_materials_of_one_model_must_agree_on_rotation():
-    """Every material turns or none; turning materials may differ in their rolling options,
-    told apart per element by their element friction (rotation_arrays)."""
+def test_materials_of_one_model_are_told_apart_by_their_friction():
+    """Turning materials may differ in their rolling options and sit beside translating
+    ones, told apart per element by their element friction (rotation_arrays)."""
     from geodem.workflow.material import rotation_arrays
 
     mats = {"a": ScaledMicroMaterial(**ROCK, rotation=True, bond_moment=0.5),
             "b": ScaledMicroMaterial(**ROCK)}
     cfg = types.SimpleNamespace(materials=mats)
     model = types.SimpleNamespace(dim=2, material_refs=lambda: [(("m",), "a"), (("n",), "b")])
-    with pytest.raises(BuildError, match="'a' \\(rotation: true\\), 'b' \\(rotation: false\\) "
-                                         "differ"):
+    # a translating material beside a turning one needs its own friction to be told apart
+    with pytest.raises(BuildError, match="two share"):
         material_rotation(cfg, model)
+    mats["b"] = ScaledMicroMaterial(**dict(ROCK, mu=0.2))
+    rot = material_rotation(cfg, model)
+    assert rot["per_material"]["b"] == (0.0, 0.5, 1.0, 0.2, False)
     mats["b"] = ScaledMicroMaterial(**ROCK, rotation=True, bond_moment=0.5)
     assert material_rotation(cfg, model) == {"rolling_friction": 0.0, "bond_moment": 0.5,
                                              "rolling_stiffness": 1.0}
@@ -94,3 +99,34 @@ def test_materials_of_one_model_must_agree_on_rotation():
     mu_r, mb, beta = rotation_arrays(rot, [mu_a, 0.123, 0.9])
     assert list(beta) == [1.0, 3.0, 3.0] and list(mb) == [0.5, 2.0, 2.0]
     assert list(mu_r) == [0.0, 0.0, 0.0]
+
+
+def _layers(tmp_path):
+    """workflows/scene_layers.yaml with its rock turning, its clay translating and the two
+    bonded across their interface, loaded for 600 steps."""
+    root = Path(__file__).resolve().parents[2]
+    wf = yaml.safe_load((root / "workflows" / "scene_layers.yaml").read_text())
+    wf["materials"]["rock"].update(rotation=True, bond_moment=1.0, rolling_stiffness=4.0)
+    wf["model"].pop("interfaces")
+    wf["steps"][-1]["nsteps"] = 600
+    p = tmp_path / "mixed.yaml"
+    p.write_text(yaml.safe_dump(wf, sort_keys=False))
+    return p
+
+
+def test_a_translating_material_beside_a_turning_one_is_held_from_turning(tmp_path):
+    from geodem.workflow.runner import Runner
+
+    out = tmp_path / "run"
+    prep = prepare(_layers(tmp_path), backend="numba", run_dir=out)
+    info, st = prep.built.info["rotation"], prep.built.state
+    assert info["per_material"]["clay"]["turns"] is False
+    assert info["per_material"]["rock"]["rolling_stiffness"] == 4.0
+    clay = st.mu == 0.3
+    assert info["per_material"]["clay"]["elements"] == int(clay.sum()) > 100
+    assert np.all(st.rfree[clay] == 0.0) and np.all(st.rfree[st.mu == 0.4] == 1.0)
+    status, summary = Runner(prep, out, progress=False, echo=False).run()
+    assert summary["status"] == "ok" and summary["energy_closure_rel_error"] < 1e-4
+    end = prep.built.state  # stepped in place: the rock's elements turned, the clay's did not
+    assert np.all(end.w[end.mu == 0.3] == 0.0)
+    assert np.abs(end.w[end.mu == 0.4]).max() > 0.0

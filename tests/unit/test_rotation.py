@@ -92,6 +92,30 @@ def test_translation_only_is_unchanged_without_rotation():
     assert st2.x[0, 0] - x0 == pytest.approx(0.05 ** 2 / (2 * 0.5 * G), rel=0.02)
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_held_rotation_is_translation(dim):
+    """Elements given rotational freedom and then held from turning (a translating material
+    beside turning ones, geodem.workflow.material.apply_material_rotation) move as
+    translating elements: the same bonds break and the positions agree to rounding, with
+    moment-resisting bonds and a stiff rolling spring switched on."""
+    base = make_specimen(n=200, dim=dim)
+    held = base.copy()
+    enable_rotation(held, mu_r=0.1, bond_moment=100.0, rolling_stiffness=8.0)
+    held.rfree[:] = 0.0
+    sims = [Simulation(s, backend="numba") for s in (base, held)]
+    for sim in sims:
+        sim.run(60)
+    assert np.array_equal(base.cstate, held.cstate)
+    assert int((base.cstate == 0).sum()) > int((make_specimen(n=200, dim=dim).cstate
+                                                == 0).sum())  # bonds broke on the way
+    assert np.all(held.w == 0.0)
+    assert rel_diff(base, held, "x") < 1e-12 and rel_diff(base, held, "v") < 1e-9
+    turning = make_specimen(n=200, dim=dim)  # the same elements free to turn move otherwise
+    enable_rotation(turning, mu_r=0.1, bond_moment=100.0, rolling_stiffness=8.0)
+    Simulation(turning, backend="numba").run(60)
+    assert rel_diff(base, turning, "v") > 0.1
+
+
 def test_rolling_law_by_hand():
     # 2-D (about z): elastic, then capped at lim with the slip heat
     mx, my, mz, q = rolling(1.0, 0.0, 0.0, 0.0, 0.0, 2e-3, 0.0, 0.0, 0.1, 100.0, 1.0)
