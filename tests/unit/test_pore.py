@@ -137,6 +137,25 @@ def test_tetrahedron_pore_volume_and_closed_forces():
                                    atol=1e-12 * 1e6 * a * a)
 
 
+def test_a_sliver_flipped_by_a_hair_is_no_inside_out_cell():
+    """A near-flat tetrahedron (a sliver of a jittered lattice) whose apex crosses its base by
+    less than INVERTED_REL d^3 of volume stays a pore of its absolute volume; crossed further,
+    the cell is inside out (and the field rebuilds its network)."""
+    from geodem.fields.pore import INVERTED_REL, _geom3
+
+    a = D
+    x = np.array([[0, 0, 0], [a, 0, 0], [0, a, 0], [0.3 * a, 0.3 * a, 0.0]])
+    cells = np.array([[0, 1, 2, 3]])
+    r = np.full(4, 0.5 * a)
+    V, cen = np.zeros(1), np.zeros((1, 3))
+    tol = INVERTED_REL * a ** 3
+    for h, inverted in ((1e-4, False), (-1e-4, False), (-5.0 * INVERTED_REL, False),
+                        (-7.0 * INVERTED_REL, True), (-0.3, True)):
+        x[3, 2] = h * a  # signed volume a^3 h / 6: the apex below the base turns it inside out
+        assert _geom3(x, r, cells, 0.0, 0.01, V, cen, tol) == int(inverted), h
+        assert V[0] == pytest.approx(0.01 * a ** 3 * abs(h) / 6.0, rel=1e-9)  # floor x |vol|
+
+
 def test_uniform_pressure_gives_no_net_force_on_an_interior_element():
     x = triangular_lattice(7, 7, D)
     sim = _fixed_sim(x, 0.5 * D)
