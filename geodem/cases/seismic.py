@@ -265,7 +265,11 @@ class ValleyAmplification(StepBase):
         med = info["medium"]
         pulse = Pulse(**field.pulse_cfg)
         ref, ref_note = None, None
-        if self.reference:
+        if field.incidence != "base":
+            ref_note = (f"no reference column: the wave enters through {field.incidence} (the "
+                        "column is the flat ground under a wave from the base); the flat "
+                        "ground before the valley is the reference")
+        elif self.reference:
             t0 = time.perf_counter()
             try:
                 st = column_state(ctx.cfg, ctx.cfg.model, self.reference_width)
@@ -289,13 +293,22 @@ class ValleyAmplification(StepBase):
         xr = ref_x[rec]
         peak_a = np.linalg.norm(a, axis=2).max(axis=0) if len(t) else np.zeros(len(rec))
         peak_v = np.linalg.norm(v, axis=2).max(axis=0) if len(t) else np.zeros(len(rec))
+        lam = med["cp"] / pulse.f
+        xc = 0.5 * (x_min + x_max) if self.valley_x is None else float(self.valley_x)
+        hw = 0.5 * self.valley_width
+        tt = np.linspace(0.0, pulse.duration, 4001)
+        a_inc = float(np.abs(np.gradient(pulse(tt), tt)).max())
+        front = (xr[:, 0] >= x_min + self.edge_exclusion * lam) & (xr[:, 0] < xc - hw - lam)
         if ref is not None:
             a_flat, flat_src = ref["surface_peak_acceleration"], "flat reference column"
+        elif field.incidence != "base" and front.any():
+            a_flat = float(np.median(peak_a[front]))
+            flat_src = (f"flat ground before the valley (median of {int(front.sum())} "
+                        "receivers)")
+        elif field.incidence != "base":
+            a_flat, flat_src = a_inc, "analytic (the incident peak acceleration)"
         else:  # analytic: twice the incident peak acceleration
-            tt = np.linspace(0.0, pulse.duration, 4001)
-            a_flat = 2.0 * float(np.abs(np.gradient(pulse(tt), tt)).max())
-            flat_src = "analytic (2 x incident peak acceleration)"
-        lam = med["cp"] / pulse.f
+            a_flat, flat_src = 2.0 * a_inc, "analytic (2 x incident peak acceleration)"
         amp_raw = peak_a / a_flat
         amp = ground_smooth(xr, amp_raw, SMOOTH * lam)
         edge = self.edge_exclusion * lam
@@ -303,8 +316,6 @@ class ValleyAmplification(StepBase):
         if not inner.any():
             inner[:] = True
         k = int(np.flatnonzero(inner)[np.argmax(amp[inner])])
-        xc = 0.5 * (x_min + x_max) if self.valley_x is None else float(self.valley_x)
-        hw = 0.5 * self.valley_width
         far = (np.abs(xr[:, 0] - xc) > hw + lam) & (xr[:, 0] > x_min + lam) & \
             (xr[:, 0] < x_max - lam)
         with open(ctx.out_dir / AMPLIFICATION_CSV, "w", newline="") as fh:
@@ -333,7 +344,9 @@ class ValleyAmplification(StepBase):
             "flat_peak_acceleration": float(a_flat), "flat_peak_acceleration_source": flat_src,
             "p_wave_speed_analytic": med["cp"], "s_wave_speed_analytic": med["cs"],
             "pulse": pulse.config(), "wavelength_m": lam, "receivers": int(len(rec)),
+            "incidence": field.incidence,
         }
+        res.update(slope_maxima(xr, amp, xc, hw))
         for key in ref_keys:
             res[key] = ref[key] if ref is not None else None
         if ref is not None:
@@ -343,6 +356,10 @@ class ValleyAmplification(StepBase):
         ctx.summary.update({key: res[key] for key in
                             ("amplification_max", "amplification_location_m") + ref_keys})
         ctx.summary["amplification_flat_ground"] = res["amplification_flat_ground"]
+        for side in ("left", "right"):
+            key = f"amplification_{side}_slope_max"
+            if key in res:
+                ctx.summary[key] = res[key]
 
         def fmt(v, f=".3g"):
             return "n/a" if v is None else format(v, f)
@@ -373,6 +390,27 @@ class ValleyAmplification(StepBase):
                     res["animation"] = ctx.plot("seismic_animation.gif", lambda p: write_gif(
                         p, frames, d, vmax))
         return res
+
+
+def slope_maxima(xr, amp, xc: float, half_width: float) -> dict:
+    """The largest (smoothed) amplification on each slope of the valley (receivers within
+    ``half_width`` of the axis ``xc``, left and right of it), where it is, and how deep:
+    ``depth_fraction`` = (ground - y) / (ground - valley bottom), 0 at the rim, 1 at the
+    bottom. Empty for a flat ground (``half_width`` 0)."""
+    if half_width <= 0.0:
+        return {}
+    ground, bottom = float(xr[:, 1].max()), float(xr[:, 1].min())
+    depth = max(ground - bottom, 1e-300)
+    out = {}
+    for side, on in (("left", (xr[:, 0] > xc - half_width) & (xr[:, 0] < xc)),
+                     ("right", (xr[:, 0] >= xc) & (xr[:, 0] < xc + half_width))):
+        if not on.any():
+            continue
+        k = int(np.flatnonzero(on)[np.argmax(amp[on])])
+        out[f"amplification_{side}_slope_max"] = float(amp[k])
+        out[f"amplification_{side}_slope_location_m"] = float(xr[k, 0])
+        out[f"amplification_{side}_slope_depth_fraction"] = float((ground - xr[k, 1]) / depth)
+    return out
 
 
 # ============================================================================ pictures
@@ -497,4 +535,4 @@ def write_gif(path, frames, d, vmax):
 
 
 __all__ = ["ValleyAmplification", "column_state", "run_column", "measure_column", "lowpass",
-           "ground_smooth"]
+           "ground_smooth", "slope_maxima"]

@@ -1,5 +1,7 @@
 """Coupled field ``wave_boundary``: a plane P wave sent up through a viscous (Lysmer-Kuhlemeyer)
-base, absorbing or free-field sides, and receivers that record the motion (2-D and 3-D).
+base, absorbing or free-field sides, and receivers that record the motion (2-D and 3-D); or,
+with ``incidence="xmin"``, a plane P wave sent along +x through the xmin face (MatDEM's seismic
+valley), the base and the other sides absorbing.
 
 The wave travels along the last axis (y in 2-D, z in 3-D) from the **base** (the bottom face)
 to the top. Each boundary element stands for one lattice line normal to its face; its area
@@ -21,6 +23,18 @@ z)/c_p))``, ``sigma_nn^ff = K0 sigma_zz^ff`` (``z`` above the base, ``H`` the ba
 ``absorbing`` drops the free field (plain dashpots); ``roller`` leaves the sides to the step
 that made them (held along their normal: exact for a flat section, uniaxial strain).
 
+Side incidence (``incidence="xmin"``): the elements of the xmin face take ``F_x = Z_p (2
+v_in(t) - v_x)``, ``F_tangential = -Z_s v`` (their impedances those of an x face), and the xmax
+face is a plain dashpot (exact for the plane wave leaving it). The faces along the wave's path
+(the base and, in 3-D, the y faces) with ``sides="free_field"`` absorb motion relative to the
+plane wave's free field, ``v_x^ff = v_in(t - (x - x_0)/c_p)``, ``sigma_nn^ff = K0 sigma_xx^ff``,
+``sigma_xx^ff = -rho c_p v_x^ff`` (``x_0`` the source face): ``F_n = -Z_p v_n + sigma_nn^ff n
+A``, ``F_x = Z_s (v_x^ff - v_x)``; with ``sides="absorbing"`` they are plain dashpots, whose
+tangential part drains the passing wave (the peak at mid-height of a 60 m block fell 27 % over
+80 m). The top stays free: a P wave running along a free surface is not a free field of it
+(the surface holds ``sigma_nn = 0``, the plane wave ``K0 sigma_xx``), so the ground sees the
+wave's own surface disturbance, in MatDEM's case as here.
+
 The normal (P) dashpots ``Z_p`` are the engine's own damping ``eta`` (implicit in the velocity
 update, booked as viscous heat); ``fload`` carries the input, the free field and the
 tangential difference ``(Z_p - Z_s) v`` (the engine's ``eta`` is isotropic), so their work is
@@ -39,6 +53,10 @@ import time
 import numpy as np
 
 from geodem.fields import CoupledField, register_field
+
+
+#: the faces a plane P wave can enter through: the base (travelling up) or xmin (along +x)
+INCIDENCE = ("base", "xmin")
 
 
 class Pulse:
@@ -116,10 +134,17 @@ class WaveBoundary(CoupledField):
     SETS = ("base", "side", "side_axis", "side_sign", "receivers", "patch_idx", "patch_ptr")
 
     def __init__(self, rho, cp, cs, k0, pitch, thickness, z_base, z_top, pulse: dict,
-                 sides="free_field", record_every=2, t_start=0.0, every=1):
+                 sides="free_field", record_every=2, t_start=0.0, every=1, incidence="base"):
         super().__init__(every)
         if sides not in ("free_field", "absorbing", "roller"):
             raise ValueError(f"sides {sides!r}: allowed free_field, absorbing, roller")
+        if incidence not in INCIDENCE:
+            raise ValueError(f"incidence {incidence!r}: allowed {', '.join(INCIDENCE)}")
+        if incidence != "base" and sides == "roller":
+            raise ValueError(f"incidence {incidence!r} with sides {sides!r}: rollers are the "
+                             "flat section's under vertical incidence; allowed: free_field, "
+                             "absorbing")
+        self.incidence = incidence
         self.rho, self.cp, self.cs, self.k0 = float(rho), float(cp), float(cs), float(k0)
         self.pitch = [float(p) for p in pitch]
         self.dim = len(self.pitch)
@@ -151,7 +176,7 @@ class WaveBoundary(CoupledField):
                 "pitch": self.pitch, "thickness": self.t, "z_base": self.z_base,
                 "z_top": self.z_top, "pulse": self.pulse_cfg, "sides": self.sides,
                 "record_every": self.record_every, "t_start": self.t_start,
-                "every": self.every}
+                "every": self.every, "incidence": self.incidence}
 
     def arrays(self) -> dict:
         out = {f"set_{k}": v for k, v in self.sets.items()}
@@ -218,6 +243,22 @@ class WaveBoundary(CoupledField):
         imp = np.array([self._impedance(a) for a in range(self.dim)])
         self._zps, self._zss, self._area = (imp[axis, k] for k in range(3))
         self._axis, self._sign = axis, sign
+        # side incidence: the positions (among the sides) of the source face's elements, and
+        # the faces along the wave's path (base, y faces) that take its free field
+        self._src = np.flatnonzero((axis == 0) & (sign < 0)) if self.incidence == "xmin" \
+            else np.zeros(0, np.int64)
+        if self.incidence == "xmin" and self.sides == "free_field":
+            along = np.flatnonzero(axis != 0)
+            self._ff_pos = np.concatenate([self._pb, self._ps[along]])
+            self._ff_axis = np.concatenate([np.full(len(base), up), axis[along]])
+            self._ff_sign = np.concatenate([-np.ones(len(base)), sign[along]])
+            self._ff_zs = np.concatenate([np.full(len(base), self._zb[1]), self._zss[along]])
+            self._ff_area = np.concatenate([np.full(len(base), self._impedance(up)[2]),
+                                            self._area[along]])
+            x_el = st.x_ref[self._idx[self._ff_pos], 0]
+            self._ff_tau = (x_el - float(st.x_ref[:, 0].min())) / self.cp
+        else:
+            self._ff_pos = np.zeros(0, np.int64)
         # tangential axes of the side elements: (axis, their positions among the sides)
         self._tang = [(j, np.flatnonzero(axis != j)) for j in range(self.dim)]
         z = st.x_ref[side, up] - self.z_base
@@ -243,18 +284,27 @@ class WaveBoundary(CoupledField):
         zp, zs = self._zb
         for j in range(up):
             f[pb, j] += (zp - zs) * vb[:, j]
-        f[pb, up] += 2.0 * zp * float(self.pulse(t))
+        v_in = float(self.pulse(t))
+        if self.incidence == "base":
+            f[pb, up] += 2.0 * zp * v_in
         if len(self._ps):
             ps = self._ps
             vs = v[self._idx[ps]]
             for j, k in self._tang:
                 if len(k):
                     f[ps[k], j] += (self._zps[k] - self._zss[k]) * vs[k, j]
-            if self.sides == "free_field":
+            if self.sides == "free_field" and self.incidence == "base":
                 u, dn = self.pulse(t - self._tau_up), self.pulse(t - self._tau_dn)
                 snn = -self.k0 * self.rho * self.cp * (u - dn)
                 f[ps, self._axis] += snn * self._sign * self._area
                 f[ps, up] += self._zss * (u + dn)
+            if len(self._src):
+                f[ps[self._src], 0] += 2.0 * self._zps[self._src] * v_in
+        if len(self._ff_pos):
+            u = self.pulse(t - self._ff_tau)
+            snn = -self.k0 * self.rho * self.cp * u
+            f[self._ff_pos, self._ff_axis] += snn * self._ff_sign * self._ff_area
+            f[self._ff_pos, 0] += self._ff_zs * u
         st.fload[self._idx] = f
         if self.record_every and st.step % self.record_every == 0:
             idx, start, cnt = self.sets["patch_idx"], self._patch_start, self._patch_cnt

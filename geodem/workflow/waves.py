@@ -1,5 +1,6 @@
 """Generic step kind ``wave_source``: a plane P wave sent up through the base of an elastic
-lattice model, with absorbing or free-field sides and receivers, in 2-D and 3-D. In 3-D the
+lattice model (or along +x through its xmin face: ``incidence: xmin``), with absorbing or
+free-field sides and receivers, in 2-D and 3-D. In 3-D the
 close-packed layers are stacked along z, and the FCC lattice's P modulus along z is exactly
 the medium's ``M`` (three of each element's six bonds at ``n_z^2 = 2/3``: ``M_z = (sqrt2 / d)
 (4/3 Kn + 2/3 Ks)``); measured on a column 8.5 spacings wide (tests/integration/
@@ -99,6 +100,11 @@ class WaveSource(StepBase):
                                         "xmax and, in 3-D, ymin, ymax)")
     side_depth: float = F(0.6, gt=0, le=2, description="Side slabs: depth in element "
                                                        "diameters (one element per lattice row)")
+    incidence: Literal["base", "xmin"] = F(
+        "base", description="Face the plane P wave enters through: base (travelling up, "
+                            "vertical incidence) or xmin (travelling along +x, MatDEM's seismic "
+                            "valley; the free-field faces are then the base and the y faces, "
+                            "the xmax face a plain dashpot)")
     receivers: Optional[Name] = F(None, description="Group whose elements record velocity and "
                                                     "acceleration")
     record_every: Int = F(2, ge=1, le=1000, description="Receiver sampling interval [steps]")
@@ -121,18 +127,28 @@ class WaveSource(StepBase):
                 out.append((("side_faces", k), f"{side!r} is not a lateral face in "
                                                f"{cfg.model.dim}-D (the wave runs along the "
                                                f"last axis)"))
+        if self.incidence != "base" and self.sides == "roller":
+            out.append((("sides",), f"sides: roller with incidence: {self.incidence}: rollers "
+                                    "are the flat section's under a wave from the base; allowed "
+                                    "with a wave from a side: free_field, absorbing"))
+        if self.incidence != "base" and self.side_faces is not None \
+                and self.incidence not in self.side_faces:
+            out.append((("side_faces",), f"the wave enters through {self.incidence}, which is "
+                                         f"not among side_faces {list(self.side_faces)}; add "
+                                         "it"))
         if med is None:
             return out
         lo, hi = cfg.model._bounds()
-        height = float(hi[-1] - lo[-1])
+        axis = -1 if self.incidence == "base" else 0
+        length = float(hi[axis] - lo[axis])
         pulse = self.make_pulse(med["cp"], cfg.model.d)
-        need = pulse.duration + height / med["cp"]
+        need = pulse.duration + length / med["cp"]
         if self.duration < need:
             out.append((("duration",), f"duration = {self.duration:g} s ends before the pulse "
                                        f"({pulse.duration:.4g} s) has crossed the model "
-                                       f"({height:g} m at c_p = {med['cp']:.0f} m/s); allowed: "
+                                       f"({length:g} m at c_p = {med['cp']:.0f} m/s); allowed: "
                                        f">= {need:.4g} s (2 crossings recommended: "
-                                       f"{pulse.duration + 2 * height / med['cp']:.4g} s)"))
+                                       f"{pulse.duration + 2 * length / med['cp']:.4g} s)"))
         return out
 
     def make_pulse(self, cp: float, d: float):
@@ -174,7 +190,8 @@ class WaveSource(StepBase):
             field = WaveBoundary(med["rho"], med["cp"], med["cs"], med["k0"], med["pitch"],
                                  med["thickness"], float(ref_x[:, -1].min()),
                                  float(ref_x[:, -1].max()), pulse.config(), sides=self.sides,
-                                 record_every=self.record_every, t_start=st.time)
+                                 record_every=self.record_every, t_start=st.time,
+                                 incidence=self.incidence)
             rec = grp.members(st, self.receivers) if self.receivers else np.zeros(0, np.int64)
             field.set_sets(sets, rec, st)
             sim.add_field(field)
@@ -215,7 +232,9 @@ class WaveSource(StepBase):
                "boundary_field_us_per_step": 1e6 * field.wall / max(field.calls, 1)}
         if len(t) and len(rec):
             res["receiver_peak_velocity_max"] = float(np.linalg.norm(v, axis=2).max())
-        ctx.log(f"{self.name}: {pulse.kind} pulse {pulse.f:.4g} Hz, {res['base_elements']} base "
+        res["incidence"] = self.incidence
+        ctx.log(f"{self.name}: {pulse.kind} pulse {pulse.f:.4g} Hz from {self.incidence}, "
+                f"{res['base_elements']} base "
                 f"and {res['side_elements']} side elements ({self.sides}), {len(rec)} "
                 f"receivers, {total} steps in {wall:.3g} s")
         return res
