@@ -231,8 +231,9 @@ def _elements_cell(spec: dict) -> str:
 def calibration_cells(row: dict) -> list[str]:
     """The :data:`CALIBRATION_COLUMNS` of one :func:`calibration_rows` row as text: each value
     with its error against the lab value, the micro-structure, the iterations, the friction
-    angle (where the calibration matched it), the Brazilian check and its disc (elements
-    across), and the run (date, wall time, threads)."""
+    angle (where the calibration matched it; ``± s`` the standard error of its mean over the
+    packings, where the record has it), the Brazilian check and its disc (elements across),
+    and the run (date, wall time, threads)."""
     import math
 
     t, rec = row["targets"], row["record"]
@@ -247,7 +248,9 @@ def calibration_cells(row: dict) -> list[str]:
     when = (f"{run['date']}, {run['wall_time_s']:.0f} s on {run['threads']} thread"
             f"{'s' if run.get('threads') != 1 else ''}" if run else "")
     phi = m.get("phi")
-    phi_cell = (f"{phi:.1f} deg ({phi - phi_lab:+.1f})" if phi is not None
+    phi_se = (rec.get("friction_test") or {}).get("phi_standard_error")
+    phi_cell = (f"{phi:.1f} deg ({phi - phi_lab:+.1f})"
+                + (f" ± {phi_se:.1f}" if phi_se is not None else "") if phi is not None
                 else "not matched")
     braz = rec.get("brazilian") or {}
     across = (f", {spec['disc_diameter'] / spec['d_mean']:.0f} across"

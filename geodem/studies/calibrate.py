@@ -1066,6 +1066,7 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
             rec["score"] = _score(rec["measured"], tg, tol, reachable, keys)
         best = min(history, key=lambda r: r["score"])
     notes += _unreachable_notes(spec, tg, best, reachable)
+    notes += _phi_resolution_notes(best.get("friction_test"), tol)
     brazilian = None
     if not synthetic:  # the synthetic responses of the tests have no disc
         brazilian = over_packings(brazilian_check, spec, best["element"], out / "brazilian")
@@ -1180,7 +1181,38 @@ def calibration_block(summary: dict) -> dict:
                                   "target_phi": round(float(summary["targets"]["phi"]), 3),
                                   "sigma3": float(f["sigma3"]), "peak_0": float(f["peak_0"]),
                                   "peak_c": None if f["peak_c"] is None else float(f["peak_c"])}
+        spread = phi_spread(f)
+        if spread:
+            block["friction_test"]["phi_per_packing"] = spread["per_packing"]
+            block["friction_test"]["phi_standard_error"] = spread["standard_error"]
     return {f"{summary['dim']}d": block}
+
+
+def phi_spread(friction: dict | None) -> dict | None:
+    """The friction angles of a friction test over several packings (:func:`over_packings`
+    of :func:`measure_friction`): ``{"per_packing": [deg...], "standard_error": deg}``, the
+    standard error of their mean (sample standard deviation / sqrt(n)); None for one packing
+    or a stage without a peak."""
+    runs = (friction or {}).get("per_packing") or []
+    phis = [r.get("phi") for r in runs]
+    if len(phis) < 2 or any(p is None or not math.isfinite(p) for p in phis):
+        return None
+    return {"per_packing": [round(float(p), 3) for p in phis],
+            "standard_error": round(float(np.std(phis, ddof=1) / math.sqrt(len(phis))), 3)}
+
+
+def _phi_resolution_notes(friction: dict | None, tol: dict) -> list:
+    """A note when the friction angle's standard error over the packings exceeds its
+    tolerance: the mean then meets the target by chance as much as by the elements (the
+    two-point angle at sigma3 = 0.133 Cu moves by several degrees with one packing's peak)."""
+    spread = phi_spread(friction)
+    if spread is None or spread["standard_error"] <= tol["phi"]:
+        return []
+    per = " / ".join(f"{p:.1f}" for p in spread["per_packing"])
+    return [f"phi over {len(spread['per_packing'])} packings: {per} deg, standard error "
+            f"{spread['standard_error']:.1f} deg > the {tol['phi']:g} deg tolerance: the "
+            f"friction angle is not resolved by these packings (more packings narrow it as "
+            f"1/sqrt(n))"]
 
 
 def _brazilian_block(b: dict) -> dict:
