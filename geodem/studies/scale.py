@@ -18,12 +18,14 @@ Families (``FAMILIES``):
   random radii jammed by FIRE, then made stress-free), bonded, in a cube;
 * ``granular``: the ``lattice`` block with every bond cut (unbonded frictional contacts), as a
   granular flow steps;
-* ``thermal``: a block at rest (equal spheres on an FCC lattice jittered by 1 % of d, bonded)
+* ``thermal``: a block (equal spheres on an FCC lattice jittered by 1 % of d, bonded)
   with the thermal field (conduction and expansion, ``geodem.fields.thermal``);
 * ``pore``: that block with the pore-fluid field (``geodem.fields.pore``; a fluid 1,000 times
-  more compressible than water, so that the block's time step stays stable). At rest, because
-  the ``lattice`` block's vibration (up to ~70 m/s) makes the pore field rebuild its network
-  at nearly every step (20 rebuilds in 22 couplings at 10⁴ elements).
+  more compressible than water, so that the block's time step stays stable). Not the
+  ``lattice`` block, whose vibration (up to ~70 m/s) makes the pore field rebuild its network
+  at nearly every step (20 rebuilds in 22 couplings at 10⁴ elements); this one's jitter
+  against bonds of rest length d sets it vibrating too (up to ~15 m/s; 4 rebuilds in 20
+  couplings at 10⁴ elements, docs/performance.md).
   A field's attach time (the pore network) counts in the build; ``FIELD_STEPS`` timed steps.
 
 Each measured curve is compared with the ideal linear cost: its local exponent between the two
