@@ -341,15 +341,15 @@ def _hold(M, V, held, pset, booked, kf, cf):
 
 
 @njit(cache=True)
-def _cpoint(x, r, a, b, d):
-    """Component ``d`` of the contact point of pair (a, b): the middle of their gap."""
+def _cscale(x, r, a, b):
+    """Where the contact point of pair (a, b), the middle of their gap, lies along the branch
+    from a to b (0 at a, 1 at b)."""
     l2 = 0.0
     for k in range(x.shape[1]):
         dd = x[b, k] - x[a, k]
         l2 += dd * dd
     L = math.sqrt(l2)
-    s = 0.5 * (L + r[a] - r[b]) / L if L > 0.0 else 0.5
-    return x[a, d] + s * (x[b, d] - x[a, d])
+    return 0.5 * (L + r[a] - r[b]) / L if L > 0.0 else 0.5
 
 
 @njit(cache=True, fastmath=True)
@@ -403,10 +403,13 @@ def _forces3(x, r, cells, P, faces, F):
             v0 = cells[c, faces[f, 0]]
             v1 = cells[c, faces[f, 1]]
             v2 = cells[c, faces[f, 2]]
+            s01 = _cscale(x, r, v0, v1)  # each contact point's scale once, not per component
+            s12 = _cscale(x, r, v1, v2)
+            s20 = _cscale(x, r, v2, v0)
             for d in range(3):
-                q[0, d] = _cpoint(x, r, v0, v1, d)  # q_01
-                q[1, d] = _cpoint(x, r, v1, v2, d)  # q_12
-                q[2, d] = _cpoint(x, r, v2, v0, d)  # q_20
+                q[0, d] = x[v0, d] + s01 * (x[v1, d] - x[v0, d])  # q_01
+                q[1, d] = x[v1, d] + s12 * (x[v2, d] - x[v1, d])  # q_12
+                q[2, d] = x[v2, d] + s20 * (x[v0, d] - x[v2, d])  # q_20
                 m[d] = (q[0, d] + q[1, d] + q[2, d]) / 3.0
             for k in range(3):
                 if k == 0:
