@@ -31,9 +31,10 @@ plane wave's free field, ``v_x^ff = v_in(t - (x - x_0)/c_p)``, ``sigma_nn^ff = K
 ``sigma_xx^ff = -rho c_p v_x^ff`` (``x_0`` the source face): ``F_n = -Z_p v_n + sigma_nn^ff n
 A``, ``F_x = Z_s (v_x^ff - v_x)``; with ``sides="absorbing"`` they are plain dashpots, whose
 tangential part drains the passing wave (at mid-height of a 60 m block its peak kept 0.82 of
-itself over 60 m, against 0.91 with the free field: tests/integration/test_wave_source.py). The top stays free: a P wave running along a free surface is not a free field of it
-(the surface holds ``sigma_nn = 0``, the plane wave ``K0 sigma_xx``), so the ground sees the
-wave's own surface disturbance, in MatDEM's case as here.
+itself over 60 m, against 0.91 with the free field: tests/integration/test_wave_source.py).
+The top stays free: a P wave running along a free surface is not a free field of it (the
+surface holds ``sigma_nn = 0``, the plane wave ``K0 sigma_xx``), so the ground sees the wave's
+own surface disturbance, in MatDEM's case as here.
 
 The normal (P) dashpots ``Z_p`` are the engine's own damping ``eta`` (implicit in the velocity
 update, booked as viscous heat); ``fload`` carries the input, the free field and the

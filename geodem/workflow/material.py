@@ -4,6 +4,8 @@ section (macro, micro, per-size and library materials), its problems, and the el
 a material asks for."""
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from geodem.workflow.models import BuildError, BuiltModel
@@ -125,14 +127,23 @@ def resolution_warnings(name: str, cal: dict, d_mean: float | None, dim: int) ->
             f"-o DIR"]
 
 
+class MaterialRolling(NamedTuple):
+    """One material's rotation option in a model (:func:`material_rotation`)."""
+    rolling_friction: float
+    bond_moment: float
+    rolling_stiffness: float
+    mu: float       # its element friction: how its elements are told apart
+    turns: bool     # False: a translating material, its elements held from turning
+
+
 def material_rotation(cfg, model) -> dict | None:
     """The rotation option of the materials ``model`` uses (``rotation``, ``rolling_friction``,
     ``bond_moment``, ``rolling_stiffness`` of their element parameters): None when none asks
     for it, else ``{"rolling_friction": mu_r, "bond_moment": b, "rolling_stiffness": beta}``
     (the largest of each over the turning materials), and, where the materials differ in those
-    values or some translate, ``"per_material"``: material name -> ``(mu_r, b, beta, mu,
-    turns)`` with ``mu`` its element friction (how :func:`apply_material_rotation` tells the
-    elements apart). The engine gives every element of such a model rotational degrees of
+    values or some translate, ``"per_material"``: material name -> :class:`MaterialRolling`
+    (``mu`` its element friction: how :func:`apply_material_rotation` tells the elements
+    apart). The engine gives every element of such a model rotational degrees of
     freedom; the elements of a translating material (``rotation`` false) are held from turning,
     which leaves their own contacts exactly as on translating elements (a contact's rolling
     moment comes from the elements' rotations only), and take the largest values as walls do,
@@ -168,8 +179,9 @@ def material_rotation(cfg, model) -> dict | None:
                              "elements are told apart by their element friction mu, which "
                              f"{'is unknown for one' if None in mus else 'two share'}; allowed: "
                              "one set of those values, or a different mu for each material")
-        out["per_material"] = {n: (v if v is not None else (mu_r, mb, beta))
-                               + (float(friction[n]), v is not None) for n, v in seen.items()}
+        out["per_material"] = {
+            n: MaterialRolling(*(v if v is not None else (mu_r, mb, beta)),
+                               float(friction[n]), v is not None) for n, v in seen.items()}
     return out
 
 
@@ -184,9 +196,9 @@ def rotation_arrays(rot: dict, mu) -> tuple:
     mu = np.asarray(mu, dtype=np.float64)
     out = [np.full(mu.shape, rot[k]) for k in ("rolling_friction", "bond_moment",
                                                 "rolling_stiffness")]
-    for mu_r, mb, beta, mu_m, _ in rot["per_material"].values():
-        mine = mu == mu_m
-        for a, v in zip(out, (mu_r, mb, beta)):
+    for m in rot["per_material"].values():
+        mine = mu == m.mu
+        for a, v in zip(out, (m.rolling_friction, m.bond_moment, m.rolling_stiffness)):
             a[mine] = v
     return tuple(out)
 
@@ -196,9 +208,9 @@ def translating_elements(rot: dict, mu) -> np.ndarray:
     turning ones (:func:`material_rotation`), told apart by their element friction ``mu``."""
     mu = np.asarray(mu, dtype=np.float64)
     held = np.zeros(mu.shape, dtype=bool)
-    for *_, mu_m, turns in (rot.get("per_material") or {}).values():
-        if not turns:
-            held |= mu == mu_m
+    for m in (rot.get("per_material") or {}).values():
+        if not m.turns:
+            held |= mu == m.mu
     return held
 
 
@@ -225,10 +237,10 @@ def apply_material_rotation(cfg, built: BuiltModel) -> None:
     if "per_material" in rot:
         mu = np.asarray(built.state.mu)
         built.info["rotation"]["per_material"] = {
-            n: ({"rolling_friction": v[0], "bond_moment": v[1], "rolling_stiffness": v[2]}
-                if v[4] else {"turns": False})
-            | {"mu": v[3], "elements": int(np.sum(mu == v[3]))}
-            for n, v in rot["per_material"].items()}
+            n: ({"rolling_friction": m.rolling_friction, "bond_moment": m.bond_moment,
+                 "rolling_stiffness": m.rolling_stiffness} if m.turns else {"turns": False})
+            | {"mu": m.mu, "elements": int(np.sum(mu == m.mu))}
+            for n, m in rot["per_material"].items()}
 
 
 # ============================================================================ specimen
