@@ -806,8 +806,9 @@ def calibrate_cmd(
         "--recipe", help="'library': the library's recipe for this rock (2-D: turning "
                          "elements, bond moment 100, the rolling stiffness by its friction "
                          "angle, the friction angle matched on three packings; 3-D: turning "
-                         "elements at rolling stiffness 4 for a friction angle of 37-44 deg, "
-                         "else translating ones), for a rock of your own; the other recipe "
+                         "elements at rolling stiffness 4 for a friction angle of 37-44 deg, at "
+                         "8 for 33-52 deg at nu <= 0.25, else translating ones), for a rock "
+                         "of your own; the other recipe "
                          "options then change it (docs/calibration.md).")] = None,
     start: Annotated[Optional[str], typer.Option(
         "--start", help="Start from the element parameters (kn_per_d, ks_per_d, xb_per_d, "

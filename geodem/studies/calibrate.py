@@ -184,24 +184,53 @@ LIBRARY_BETA_3D = 4.0
 #: other four targets met, nu 0.25): the limestone's 41.3 / 40.8 / 40.3 / 39.2 deg at mu 0.135
 #: / 0.121 / 0.080 / 0.054 (flat toward the lowest contact friction: a floor near 39), the
 #: marble's 39.6 at 0.15 and 43.2 / 43.9 at 0.275 / 0.386 (flat above); the 2 deg tolerance
-#: below the floor. Outside, translating elements
+#: below the floor
 LIBRARY_TURNING_PHI_3D = (37.0, 44.0)
+#: outside that band, a stiffer rolling spring: BETA 8 met all five targets for the sandstone
+#: (nu 0.2, 35 deg at mu 0.096; 24.7 deg at mu 0.05) and the granite (nu 0.25, 50 deg at mu
+#: 0.62), three packings each; on the soft shear springs of nu 0.3 the angle keeps a floor of
+#: 32-34 deg at the lowest contact friction (mudstone 33.8 deg at BETA 8 and 31.9 at 16, stiff
+#: clay 31.7 and 32.0), so rocks of nu above 0.25 stay on translating elements.
+#: ``(lowest phi, highest phi [deg], highest nu)``
+LIBRARY_STIFF_TURNING_3D = (33.0, 52.0, 0.25)
+LIBRARY_STIFF_BETA_3D = 8.0
+
+
+def library_beta_3d(targets: dict) -> float | None:
+    """The rolling stiffness of the 3-D library recipe's turning elements for ``targets``
+    (:data:`LIBRARY_BETA_3D` within :data:`LIBRARY_TURNING_PHI_3D`, else
+    :data:`LIBRARY_STIFF_BETA_3D` within :data:`LIBRARY_STIFF_TURNING_3D`), or None for
+    translating elements."""
+    mu_i = targets.get("mu_i")
+    if not mu_i:
+        return None
+    phi = friction_angle(float(mu_i))
+    low, high = LIBRARY_TURNING_PHI_3D
+    if low <= phi <= high:
+        return LIBRARY_BETA_3D
+    low, high, nu_max = LIBRARY_STIFF_TURNING_3D
+    if low <= phi <= high and float(targets.get("nu", 0.0)) <= nu_max:
+        return LIBRARY_STIFF_BETA_3D
+    return None
 
 
 def library_turning_left_out(targets: dict) -> str | None:
     """Why the 3-D library recipe takes translating elements for ``targets``: no friction
-    angle given, or one outside what the turning ones were measured to reach
-    (:data:`LIBRARY_TURNING_PHI_3D`); None when it takes turning ones."""
+    angle given, or one (and a Poisson ratio) outside what the turning ones were measured to
+    reach (:func:`library_beta_3d`); None when it takes turning ones."""
     mu_i = targets.get("mu_i")
     if not mu_i:
         return "no friction angle given: translating elements (four targets)"
-    phi = friction_angle(float(mu_i))
-    low, high = LIBRARY_TURNING_PHI_3D
-    if low <= phi <= high:
+    if library_beta_3d(targets) is not None:
         return None
-    return (f"phi = {phi:.1f} deg lies outside the {low:g}-{high:g} deg that 3-D turning "
-            f"elements (rolling stiffness {LIBRARY_BETA_3D:g}) were measured to reach: "
-            "translating elements instead (their Brazilian disc splits above Tu)")
+    phi = friction_angle(float(mu_i))
+    low, high, nu_max = LIBRARY_STIFF_TURNING_3D
+    return (f"phi = {phi:.1f} deg at nu = {float(targets.get('nu', 0.0)):.3g} lies outside what "
+            f"3-D turning elements were measured to reach ({LIBRARY_TURNING_PHI_3D[0]:g}-"
+            f"{LIBRARY_TURNING_PHI_3D[1]:g} deg at rolling stiffness {LIBRARY_BETA_3D:g}, "
+            f"{low:g}-{high:g} deg at nu <= {nu_max:g} at rolling stiffness "
+            f"{LIBRARY_STIFF_BETA_3D:g}): translating elements instead (their Brazilian disc "
+            "splits above Tu)")
 
 
 def library_recipe(dim: int, targets: dict) -> tuple[dict, bool, int]:
@@ -209,14 +238,14 @@ def library_recipe(dim: int, targets: dict) -> tuple[dict, bool, int]:
     angle): ``(structure, friction, packings)``. 2-D: turning elements (bond moment
     :data:`LIBRARY_BOND_MOMENT`, BETA from :data:`LIBRARY_BETA_BY_PHI`), the friction angle
     matched when ``mu_i`` is given, :data:`LIBRARY_PACKINGS` packings. 3-D: turning elements
-    (bond moment :data:`LIBRARY_BOND_MOMENT`, BETA :data:`LIBRARY_BETA_3D`) for a friction
-    angle within :data:`LIBRARY_TURNING_PHI_3D` (:func:`library_turning_left_out`); else
-    translating ones, the friction angle matched unless it lies below what those reach
-    (:func:`library_friction_left_out`)."""
+    (bond moment :data:`LIBRARY_BOND_MOMENT`, BETA from :func:`library_beta_3d`) where they
+    were measured to reach the friction angle; else translating ones, the friction angle
+    matched unless it lies below what those reach (:func:`library_friction_left_out`)."""
     mu_i = targets.get("mu_i")
     if dim == 3:
-        if library_turning_left_out(targets) is None:
-            return _turning(LIBRARY_BETA_3D), True, LIBRARY_PACKINGS
+        beta = library_beta_3d(targets)
+        if beta is not None:
+            return _turning(beta), True, LIBRARY_PACKINGS
         friction = bool(mu_i) and library_friction_left_out(targets) is None
         return {"packing": "isotropic"}, friction, LIBRARY_PACKINGS
     phi = math.degrees(math.atan(float(mu_i))) if mu_i else 35.0
