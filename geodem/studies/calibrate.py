@@ -158,7 +158,7 @@ PRIOR_ROTATION = {
 #: three packings each; flat at high mu), and the BETA 8 marble's elements at BETA 4 read 33.4
 #: deg at mu 0.10 (one packing, their Cu 17 % low). Calibrated, the angle does not fall that
 #: far: the limestone at BETA 4 read 41.3 / 40.8 / 40.3 / 39.2 deg at mu 0.135 / 0.121 /
-#: 0.080 / 0.054 (a floor near 39: :data:`LIBRARY_TURNING_PHI_3D`). Its Cu rose 3.8 % as mu
+#: 0.080 / 0.054 (a floor near 39: :data:`LIBRARY_TURNING_3D`). Its Cu rose 3.8 % as mu
 #: fell from 0.344 to 0.308: no dCu / d ln mu of the 2-D size.
 PRIOR_ROTATION_3D_BETA = {
     4.0: {"E": 2.85, "Tu": 5.78, "Cu": 9.64, "s_of_nu": (0.201, 0.25, -0.51),
@@ -176,42 +176,33 @@ LIBRARY_BOND_MOMENT = 100.0
 LIBRARY_PACKINGS = 3
 
 
-#: the library's 3-D turning elements: bond moment 100 and rolling stiffness 4 (a 3-D disc of
-#: translating elements splits at 1.65-3.3 x Tu; the marble on these, all five targets met,
-#: at 1.11 x on 20-across discs: docs/calibration.md, "Friction angle in 3-D")
-LIBRARY_BETA_3D = 4.0
-#: the friction angles [deg] those elements were measured to reach (three packings each, the
-#: other four targets met, nu 0.25): the limestone's 41.3 / 40.8 / 40.3 / 39.2 deg at mu 0.135
-#: / 0.121 / 0.080 / 0.054 (flat toward the lowest contact friction: a floor near 39), the
-#: marble's 39.6 at 0.15 and 43.2 / 43.9 at 0.275 / 0.386 (flat above); the 2 deg tolerance
-#: below the floor
-LIBRARY_TURNING_PHI_3D = (37.0, 44.0)
-#: outside that band, a stiffer rolling spring: BETA 8 met all five targets for the sandstone
-#: (nu 0.2, 35 deg at mu 0.096; 24.7 deg at mu 0.05) and the granite (nu 0.25, 50 deg at mu
-#: 0.62), three packings each; on the soft shear springs of nu 0.3 the angle keeps a floor of
-#: 32-34 deg at the lowest contact friction (mudstone 33.8 deg at BETA 8 and 31.9 at 16, stiff
-#: clay 31.7 and 32.0), so rocks of nu above 0.25 stay on translating elements.
-#: ``(lowest phi, highest phi [deg], highest nu)``
-LIBRARY_STIFF_TURNING_3D = (33.0, 52.0, 0.25)
-LIBRARY_STIFF_BETA_3D = 8.0
+#: the library's 3-D turning elements (bond moment 100; a 3-D disc of translating elements
+#: splits at 1.65-3.3 x Tu): the bands of friction angle (and the largest Poisson ratio) where
+#: a rolling stiffness BETA was measured to meet all five targets, three packings each,
+#: ``(lowest phi, highest phi [deg], highest nu, BETA)``, the first that holds a rock taken.
+#: BETA 4: the limestone's 41.3 / 40.8 / 40.3 / 39.2 deg at mu 0.135 / 0.121 / 0.080 / 0.054
+#: (flat toward the lowest contact friction: a floor near 39), the marble's 39.6 at 0.15 and
+#: 43.2 / 43.9 at 0.275 / 0.386 (flat above), the 2 deg tolerance below the floor (nu 0.25
+#: both; the band is not limited in nu);
+#: the marble's discs 20 across at 1.11 x (docs/calibration.md, "Friction angle in 3-D").
+#: BETA 8: the sandstone (nu 0.2, 35 deg at mu 0.096; 24.7 deg at mu 0.05) and the granite
+#: (nu 0.25, 50 deg at mu 0.62). On the soft shear springs of nu 0.3 the angle keeps a floor
+#: of 32-34 deg at the lowest contact friction (mudstone 33.8 deg at BETA 8 and 31.9 at 16,
+#: stiff clay 31.7 and 32.0), so rocks of nu above 0.25 stay on translating elements.
+LIBRARY_TURNING_3D = ((37.0, 44.0, math.inf, 4.0), (33.0, 52.0, 0.25, 8.0))
 
 
 def library_beta_3d(targets: dict) -> float | None:
     """The rolling stiffness of the 3-D library recipe's turning elements for ``targets``
-    (:data:`LIBRARY_BETA_3D` within :data:`LIBRARY_TURNING_PHI_3D`, else
-    :data:`LIBRARY_STIFF_BETA_3D` within :data:`LIBRARY_STIFF_TURNING_3D`), or None for
-    translating elements."""
+    (the first band of :data:`LIBRARY_TURNING_3D` that holds its friction angle and Poisson
+    ratio), or None for translating elements."""
     mu_i = targets.get("mu_i")
     if not mu_i:
         return None
     phi = friction_angle(float(mu_i))
-    low, high = LIBRARY_TURNING_PHI_3D
-    if low <= phi <= high:
-        return LIBRARY_BETA_3D
-    low, high, nu_max = LIBRARY_STIFF_TURNING_3D
-    if low <= phi <= high and float(targets.get("nu", 0.0)) <= nu_max:
-        return LIBRARY_STIFF_BETA_3D
-    return None
+    nu = float(targets.get("nu", 0.0))
+    return next((beta for low, high, nu_max, beta in LIBRARY_TURNING_3D
+                 if low <= phi <= high and nu <= nu_max), None)
 
 
 def library_turning_left_out(targets: dict) -> str | None:
@@ -223,13 +214,13 @@ def library_turning_left_out(targets: dict) -> str | None:
         return "no friction angle given: translating elements (four targets)"
     if library_beta_3d(targets) is not None:
         return None
-    phi = friction_angle(float(mu_i))
-    low, high, nu_max = LIBRARY_STIFF_TURNING_3D
-    return (f"phi = {phi:.1f} deg at nu = {float(targets.get('nu', 0.0)):.3g} lies outside what "
-            f"3-D turning elements were measured to reach ({LIBRARY_TURNING_PHI_3D[0]:g}-"
-            f"{LIBRARY_TURNING_PHI_3D[1]:g} deg at rolling stiffness {LIBRARY_BETA_3D:g}, "
-            f"{low:g}-{high:g} deg at nu <= {nu_max:g} at rolling stiffness "
-            f"{LIBRARY_STIFF_BETA_3D:g}): translating elements instead (their Brazilian disc "
+    bands = ", ".join(f"{low:g}-{high:g} deg"
+                      + (f" at nu <= {nu_max:g}" if math.isfinite(nu_max) else "")
+                      + f" at rolling stiffness {beta:g}"
+                      for low, high, nu_max, beta in LIBRARY_TURNING_3D)
+    return (f"phi = {friction_angle(float(mu_i)):.1f} deg at nu = "
+            f"{float(targets.get('nu', 0.0)):.3g} lies outside what 3-D turning elements were "
+            f"measured to reach ({bands}): translating elements instead (their Brazilian disc "
             "splits above Tu)")
 
 
