@@ -91,7 +91,7 @@ class CupyBackend:
         return (self.s.n + THREADS - 1) // THREADS
 
     def push(self, names=None):
-        key = (self.s.rotation, self.s.contact_damping)
+        key = (self.s.rotation, self.s.contact_damping, self.s.row_stiffness)
         if key != getattr(self, "k_key", None):  # the kernel variant (may change after attach)
             self.k = make_kernels(self.s.dim, "cuda", *key)
             self.k_key = key
@@ -199,5 +199,5 @@ class CupyBackend:
         self.k.energy[self._blocks(), THREADS](d["x"], d["props"], d["nbr"],
                                                d["cstate"], d["fs"], int(self.s.hertz),
                                                d["e_el"], self.view["mr"],
-                                               self.view["rot_props"])
+                                               self.view["rot_props"], self.view["krate"])
         return self.e_el if self.xp is np else self.e_el.get()

@@ -112,8 +112,9 @@ class NumbaBackend(HostBackend):
         """The arrays of the options (rotation, contact damping) for the kernels, looked up per
         call (a rebuild may replace ``mr``); placeholders for an option that is off."""
         s = self.s
-        if (s.rotation, s.contact_damping) != self.k_key:  # the variant (changes after attach)
-            self.k_key = (s.rotation, s.contact_damping)
+        key = (s.rotation, s.contact_damping, s.row_stiffness)
+        if key != self.k_key:  # the variant (changes after attach)
+            self.k_key = key
             self.k = make_kernels(s.dim, "cpu", *self.k_key)
             if self.buf is not None and self.buf.shape[1] != self._width():
                 self._buffers()  # an option's columns
@@ -208,11 +209,11 @@ class NumbaBackend(HostBackend):
         g0, g1, g2 = self._gravity()
         if self._each_once():
             ostart, mirror = self.tables
-            w, wa, dth, rfree, inertia, fdash, mr, rp = extra
+            w, wa, dth, rfree, inertia, fdash, mr, rp, kr = extra
             cstart, spill, inc_start = self.cross
             self.k.force_owner(s.x, s.dx, s.props, s.m, s.nbr, ostart, mirror, s.cstate, s.fs,
                                s.brate, self.buf, cstart, spill, self.slabs, dt, code_t,
-                               code_s, int(s.hertz), dth, mr, rp, self.ahead)
+                               code_s, int(s.hertz), dth, mr, rp, kr, self.ahead)
             self.k.finish(s.v, s.a, s.dx, s.free, s.fload, s.m, s.eta, self.buf, inc_start,
                           s.q_visc, s.q_break_n, s.q_break_s, s.q_fric, s.w_ext, g0, g1, g2, dt,
                           *extra)
@@ -250,6 +251,6 @@ class NumbaBackend(HostBackend):
     def elastic_energy(self):
         s = self.s
         self._sync_partners()
-        mr, rp = self._extra(("mr", "rot_props"))
-        self.k.energy(s.x, s.props, s.nbr, s.cstate, s.fs, int(s.hertz), self.e_el, mr, rp)
+        mr, rp, kr = self._extra(("mr", "rot_props", "krate"))
+        self.k.energy(s.x, s.props, s.nbr, s.cstate, s.fs, int(s.hertz), self.e_el, mr, rp, kr)
         return self.e_el

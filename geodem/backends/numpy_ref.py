@@ -19,6 +19,11 @@ def _spring(f2, k):
     return np.where(k > 0.0, 0.5 * f2 / np.where(k > 0.0, k, 1.0), 0.0)
 
 
+def _stiffness_factor(s):
+    """The rows' contact stiffness factor (``krate``; 1 without it)."""
+    return s.krate if s.row_stiffness else 1.0
+
+
 def _colsum(mat):
     """Sum over the neighbour columns in row order (the order the kernels use)."""
     out = np.zeros(mat.shape[0])
@@ -76,8 +81,9 @@ class NumpyBackend(HostBackend):
                 c = ri[..., None] * s.dth[:, None, :] + rj[..., None] * s.dth[j]
                 rel = rel - np.cross(c, n)
         xn = dist - (s.r[:, None] + s.r[j])
-        kn = series_array(s.kn[:, None], s.kn[j])
-        ks = series_array(s.ks[:, None], s.ks[j])
+        kf = _stiffness_factor(s)
+        kn = series_array(s.kn[:, None], s.kn[j]) * kf
+        ks = series_array(s.ks[:, None], s.ks[j]) * kf
         mu = np.minimum(s.mu[:, None], s.mu[j])
         rate = s.brate.astype(np.float64)
 
@@ -111,7 +117,7 @@ class NumpyBackend(HostBackend):
             e_j = s.kn[j] / (np.pi * s.r[j])
             ov = np.where(comp, -xn, 0.0)
             fn_u = -(4.0 / 3.0) * series_array(e_i, e_j) * np.sqrt(series_array(s.r[:, None], s.r[j])) \
-                * ov * np.sqrt(ov)
+                * ov * np.sqrt(ov) * kf
         else:
             fn_u = kn * xn
         lim_u = -mu * fn_u
@@ -132,7 +138,7 @@ class NumpyBackend(HostBackend):
         if s.hertz:  # broken in compression: the normal energy changes to Hertz's (law.contact)
             ovc = np.where(shr_c, -xn, 0.0)
             fhc = (4.0 / 3.0) * series_array(e_i, e_j) \
-                * np.sqrt(series_array(s.r[:, None], s.r[j])) * ovc * np.sqrt(ovc)
+                * np.sqrt(series_array(s.r[:, None], s.r[j])) * ovc * np.sqrt(ovc) * kf
             qs = qs + np.where(shr_c, 0.5 * kn * xn * xn - 0.4 * fhc * ovc, 0.0)
         qf = qf + np.where(apart, rot2 * hks, 0.0)
         qf = qf + np.where(slide, ((rot + new) * (trial - new)).sum(-1) * hks, 0.0)
@@ -196,7 +202,7 @@ class NumpyBackend(HostBackend):
         ri = s.r[:, None]
         rs = series_array(ri, s.r[j])
         beta = np.minimum(s.rolling_stiffness[:, None], s.rolling_stiffness[j])
-        kr = beta * series_array(s.ks[:, None], s.ks[j]) * rs * rs
+        kr = beta * (series_array(s.ks[:, None], s.ks[j]) * _stiffness_factor(s)) * rs * rs
         lim = np.minimum(s.mu_r[:, None], s.mu_r[j]) * rs * np.maximum(-fn, 0.0)
         mb = np.minimum(s.bond_moment[:, None], s.bond_moment[j])
         lim = lim + np.where(bonded & (mb > 0.0), mb * rs * np.where(mb > 0.0, bf, 0.0), 0.0)
@@ -237,8 +243,9 @@ class NumpyBackend(HostBackend):
         s = self.s
         valid, j, d, dist = self._geometry()
         xn = dist - (s.r[:, None] + s.r[j])
-        kn = series_array(s.kn[:, None], s.kn[j])
-        ks = series_array(s.ks[:, None], s.ks[j])
+        kf = _stiffness_factor(s)
+        kn = series_array(s.kn[:, None], s.kn[j]) * kf
+        ks = series_array(s.ks[:, None], s.ks[j]) * kf
         e = _spring((s.fs * s.fs).sum(-1), ks)
         bonded = s.cstate == BONDED
         comp = ~bonded & (xn < 0.0)
@@ -247,14 +254,14 @@ class NumpyBackend(HostBackend):
             e_j = s.kn[j] / (np.pi * s.r[j])
             ov = np.where(comp, -xn, 0.0)
             fh = (4.0 / 3.0) * series_array(e_i, e_j) * np.sqrt(series_array(s.r[:, None], s.r[j])) \
-                * ov * np.sqrt(ov)
+                * ov * np.sqrt(ov) * kf
             en = np.where(bonded, 0.5 * kn * xn * xn, np.where(comp, 0.4 * fh * ov, 0.0))
         else:
             en = np.where(bonded | comp, 0.5 * kn * xn * xn, 0.0)
         if s.rotation:
             rs = series_array(s.r[:, None], s.r[j])
             beta = np.minimum(s.rolling_stiffness[:, None], s.rolling_stiffness[j])
-            kr = beta * series_array(s.ks[:, None], s.ks[j]) * rs * rs
+            kr = beta * (series_array(s.ks[:, None], s.ks[j]) * kf) * rs * rs
             e = e + _spring((s.mr * s.mr).sum(-1), kr)
         self.e_el[:] = 0.5 * _colsum(np.where(valid, e + en, 0.0))
         return self.e_el

@@ -25,6 +25,11 @@ The step is two passes over elements (velocity Verlet, PHYSICS.md section 3):
    ends every element's step exactly as ``force_body`` does (``finish_dofs``). The GPU and
    steps over a list of awake elements keep ``force_body``.
 
+``KROW`` (compile-time): the contacts carry their own stiffness factor ``krate``
+(``geodem.core.state.enable_row_stiffness``: a softer interface between two regions), read by
+:func:`row_stiffness`; without it the factor is the literal 1.0 and the compiled code is the
+plain one.
+
 ``ROT`` (compile-time): the elements also turn (``geodem.core.state.enable_rotation``); the
 rotation arrays ``w, wa, dth, rfree, inertia, mr, rot_props`` are then read and written,
 otherwise they are placeholders the compiled code never touches. ``DAMP`` (compile-time):
@@ -44,6 +49,7 @@ from geodem.core.law import BONDED, contact, contact_energy, rolling, series
 DIM = 3  # placeholders: bound per compiled variant
 ROT = False
 DAMP = False
+KROW = False
 NR = 3
 # the passes cpu_steps calls: jitted under these names in the generated module
 move = force_owner = finish = None
@@ -115,18 +121,26 @@ def own_params(i, props):
     return props[i, 0], props[i, 1], props[i, 2], props[i, 3], props[i, 4], props[i, 5]
 
 
-def row_contact(i, k, j, bx, by, bz, rx, ry, rz, props, pi, fs, brate, cs, code_t, code_s,
+def row_stiffness(kr, i, k):
+    # KROW: the contact stiffness factor of entry k of row i; else exactly 1 (folded away)
+    if KROW:
+        return kr[i, k]
+    return 1.0
+
+
+def row_contact(i, k, j, bx, by, bz, rx, ry, rz, props, pi, fs, brate, kf, cs, code_t, code_s,
                 hertz):
     # the law for entry k of row i (partner j, branch b, relative displacement r of the
-    # step, i's parameters pi); stores the new shear spring in the entry, returns the law's
-    # tuple (geodem.core.law.contact)
+    # step, i's parameters pi, stiffness factor kf); stores the new shear spring in the
+    # entry, returns the law's tuple (geodem.core.law.contact)
     ri, kni, ksi, xbi, fs0i, mui = pi
     s2 = 0.0
     if DIM == 3:
         s2 = fs[i, k, 2]
     out = contact(bx, by, bz, rx, ry, rz, fs[i, k, 0], fs[i, k, 1], s2,
                   ri, props[j, 0], kni, props[j, 1], ksi, props[j, 2], xbi, props[j, 3],
-                  fs0i, props[j, 4], mui, props[j, 5], brate[i, k], cs, code_t, code_s, hertz)
+                  fs0i, props[j, 4], mui, props[j, 5], brate[i, k], kf, cs, code_t, code_s,
+                  hertz)
     fs[i, k, 0] = out[4]
     fs[i, k, 1] = out[5]
     if DIM == 3:
@@ -182,7 +196,7 @@ def contact_point(i, j, bx, by, bz, rx, ry, rz, ri, rj, dth):
     return rx - (cy * cnz - cz * cny), ry - (cz * cnx - cx * cnz), rz - (cx * cny - cy * cnx)
 
 
-def entry_contact(i, k, j, x, dx, xi0, xi1, xi2, di0, di1, di2, props, pi, fs, brate, cs,
+def entry_contact(i, k, j, x, dx, xi0, xi1, xi2, di0, di1, di2, props, pi, fs, brate, kf, cs,
                   dth, code_t, code_s, hertz):
     # entry k of row i (partner j) through the law: the law's tuple (the spring stored), then
     # the relative displacement the law saw (the contact point's with ROT) and R_j (ROT)
@@ -192,18 +206,18 @@ def entry_contact(i, k, j, x, dx, xi0, xi1, xi2, di0, di1, di2, props, pi, fs, b
         rj = props[j, 0]
         rx, ry, rz = contact_point(i, j, bx, by, bz, rx, ry, rz, pi[0], rj, dth)
     (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf) = row_contact(
-        i, k, j, bx, by, bz, rx, ry, rz, props, pi, fs, brate, cs, code_t, code_s, hertz)
+        i, k, j, bx, by, bz, rx, ry, rz, props, pi, fs, brate, kf, cs, code_t, code_s, hertz)
     return fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf, rx, ry, rz, rj
 
 
-def dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, rz, kni, props, m, dt):
+def dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, rz, kni, kf, props, m, dt):
     # DAMP: normal dashpot c (v_j - v_i).n on a contact in compression, force on i along n
     # [N]; an unbonded contact may resist separation but never pull
     zeta = min(props[i, 7], props[j, 7])
     fd = 0.0
     if fn < 0.0 and zeta > 0.0 and dt > 0.0:
         mj = m[j]
-        c = 2.0 * zeta * math.sqrt(m[i] * mj / (m[i] + mj) * series(kni, props[j, 1]))
+        c = 2.0 * zeta * math.sqrt(m[i] * mj / (m[i] + mj) * (series(kni, props[j, 1]) * kf))
         # the step's mean relative velocity du/dt (the end-of-step velocities are not known
         # yet): first-order accurate in dt
         fd = c * (nx * rx + ny * ry + nz * rz) / dt
@@ -212,13 +226,13 @@ def dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, rz, kni, props, m, dt):
     return fd
 
 
-def roll(i, j, k, fn, csn, nx, ny, nz, ri, rj, ksi, props, brate, dth, mr, rp):
+def roll(i, j, k, fn, csn, nx, ny, nz, ri, rj, ksi, kf, props, brate, dth, mr, rp):
     # ROT: the rolling resistance of entry k of row i; stores the new moment, returns it
     # (moment on i [N m]; 2-D: about z only) and its heat. Rolling spring K_r = beta Ks R*^2
     # (beta: rp column 1). A bond (state csn after this step's law) also holds
     # bond_moment R* F_b (rp column 0), F_b = rate min(kn xb) its tensile strength
     rs = series(ri, rj)
-    kr = min(rp[i, 1], rp[j, 1]) * series(ksi, props[j, 2]) * rs * rs
+    kr = min(rp[i, 1], rp[j, 1]) * (series(ksi, props[j, 2]) * kf) * rs * rs
     lim = min(props[i, 6], props[j, 6]) * rs * max(-fn, 0.0)
     if csn == BONDED:
         mbij = min(rp[i, 0], rp[j, 0])
@@ -244,7 +258,7 @@ def force_body(i, x, v, a, dx, free, fload, props, m, eta,
                g0, g1, g2, dt, code_t, code_s, hertz, ext):
     # the options' arrays come as one tuple: seven more arguments of the inlined body made
     # the plain kernel 15-25 % slower (measured), one tuple costs nothing
-    w, wa, dth, rfree, inertia, fdash, mr, rp = ext
+    w, wa, dth, rfree, inertia, fdash, mr, rp, kr = ext
     xi0, xi1, xi2, di0, di1, di2 = own_position(i, x, dx)
     pi = own_params(i, props)
     ri, kni, ksi = pi[0], pi[1], pi[2]  # the rotation and the dashpot need these
@@ -265,8 +279,9 @@ def force_body(i, x, v, a, dx, free, fload, props, m, eta,
         if j < 0:
             break
         cs = cstate[i, k]
+        kf = row_stiffness(kr, i, k)
         (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf, rx, ry, ez, rj) = entry_contact(
-            i, k, j, x, dx, xi0, xi1, xi2, di0, di1, di2, props, pi, fs, brate, cs, dth,
+            i, k, j, x, dx, xi0, xi1, xi2, di0, di1, di2, props, pi, fs, brate, kf, cs, dth,
             code_t, code_s, hertz)
         if csn != cs:
             cstate[i, k] = csn
@@ -277,14 +292,14 @@ def force_body(i, x, v, a, dx, free, fload, props, m, eta,
         qs += eqs
         qf += eqf
         if DAMP:
-            fd = dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, ez, kni, props, m, dt)
+            fd = dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, ez, kni, kf, props, m, dt)
             d0 += fd * nx
             d1 += fd * ny
             d2 += fd * nz
         if ROT:
             # the shear force acts at the contact point R_i n; rolling resistance on top
-            mx, my, mz, eqr = roll(i, j, k, fn, csn, nx, ny, nz, ri, rj, ksi, props, brate,
-                                   dth, mr, rp)
+            mx, my, mz, eqr = roll(i, j, k, fn, csn, nx, ny, nz, ri, rj, ksi, kf, props,
+                                   brate, dth, mr, rp)
             if DIM == 3:
                 t0 += ri * (ny * sz - nz * sy) + mx
                 t1 += ri * (nz * sx - nx * sz) + my
@@ -300,7 +315,7 @@ def finish_dofs(i, f0, f1, f2, d0, d1, d2, t0, t1, t2, qn, qs, qf,
                 g0, g1, g2, dt, ext):
     # element i's step after its contacts: contact force f, dashpot force d (DAMP), torque t
     # (ROT), and its shares of the contacts' heats qn, qs, qf [J] to book
-    w, wa, dth, rfree, inertia, fdash, mr, rp = ext
+    w, wa, dth, rfree, inertia, fdash, mr, rp, kr = ext
     q_bn[i] += qn
     q_bs[i] += qs
     q_f[i] += qf
@@ -341,7 +356,7 @@ def finish_dofs(i, f0, f1, f2, d0, d1, d2, t0, t1, t2, qn, qs, qf,
     w_ext[i] += we
 
 
-def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr, rp):
+def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr, rp, kr):
     # half of each contact's elastic energy (the other half is booked by j's row)
     e = 0.0
     for k in range(nbr.shape[1]):
@@ -350,21 +365,22 @@ def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr, rp):
             break
         ex = 0.0
         s2 = 0.0
+        kf = row_stiffness(kr, i, k)
         if DIM == 3:
             ex = x[j, 2] - x[i, 2]
             s2 = fs[i, k, 2]
         e += contact_energy(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], ex,
                             fs[i, k, 0], fs[i, k, 1], s2,
                             props[i, 0], props[j, 0], props[i, 1], props[j, 1],
-                            props[i, 2], props[j, 2], cstate[i, k], hertz)
+                            props[i, 2], props[j, 2], cstate[i, k], hertz, kf)
         if ROT:
             rs = series(props[i, 0], props[j, 0])
-            kr = min(rp[i, 1], rp[j, 1]) * series(props[i, 2], props[j, 2]) * rs * rs
+            krl = min(rp[i, 1], rp[j, 1]) * (series(props[i, 2], props[j, 2]) * kf) * rs * rs
             m2 = 0.0
             for d in range(NR):
                 m2 += mr[i, k, d] * mr[i, k, d]
-            if kr > 0.0:
-                e += 0.5 * m2 / kr
+            if krl > 0.0:
+                e += 0.5 * m2 / krl
     e_el[i] = 0.5 * e
 
 
@@ -390,7 +406,7 @@ def energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr, rp):
 # slot (``mirror``) when it changes, its shear spring and rolling moment by ``mirror_body``
 # when the partner slots are wanted (``geodem.backends.numba_backend``).
 def owner_body(i, hi, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
-               spill, c, dt, code_t, code_s, hertz, dth, mr, rp):
+               spill, c, dt, code_t, code_s, hertz, dth, mr, rp, kr):
     n = x.shape[0]
     xi0, xi1, xi2, di0, di1, di2 = own_position(i, x, dx)
     pi = own_params(i, props)
@@ -412,8 +428,9 @@ def owner_body(i, hi, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, b
         if j < 0:
             break
         cs = cstate[i, k]
+        kf = row_stiffness(kr, i, k)
         (fn, nx, ny, nz, sx, sy, sz, csn, eqn, eqs, eqf, rx, ry, ez, rj) = entry_contact(
-            i, k, j, x, dx, xi0, xi1, xi2, di0, di1, di2, props, pi, fs, brate, cs, dth,
+            i, k, j, x, dx, xi0, xi1, xi2, di0, di1, di2, props, pi, fs, brate, kf, cs, dth,
             code_t, code_s, hertz)
         if csn != cs:
             cstate[i, k] = csn
@@ -430,7 +447,7 @@ def owner_body(i, hi, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, b
         qs += eqs
         fd = 0.0
         if DAMP:
-            fd = dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, ez, kni, props, m, dt)
+            fd = dashpot(i, j, fn, csn, nx, ny, nz, rx, ry, ez, kni, kf, props, m, dt)
             d0 += fd * nx
             d1 += fd * ny
             if DIM == 3:
@@ -440,8 +457,8 @@ def owner_body(i, hi, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, b
         u2 = 0.0
         if ROT:
             # j receives -Fs at -R_j n: torque R_j n x Fs, like i's with R_j; moment -M
-            mx, my, mz, eqr = roll(i, j, k, fn, csn, nx, ny, nz, ri, rj, ksi, props, brate,
-                                   dth, mr, rp)
+            mx, my, mz, eqr = roll(i, j, k, fn, csn, nx, ny, nz, ri, rj, ksi, kf, props,
+                                   brate, dth, mr, rp)
             cz = nx * sy - ny * sx
             if DIM == 3:
                 cx = ny * sz - nz * sy
@@ -602,16 +619,16 @@ def cpu_move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
 
 def cpu_force(x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
               brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz,
-              w, wa, dth, rfree, inertia, fdash, mr, rp):
+              w, wa, dth, rfree, inertia, fdash, mr, rp, kr):
     for i in prange(x.shape[0]):
         force_body(i, x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                    fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                   code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr, rp))
+                   code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr, rp, kr))
 
 
-def cpu_energy(x, props, nbr, cstate, fs, hertz, e_el, mr, rp):
+def cpu_energy(x, props, nbr, cstate, fs, hertz, e_el, mr, rp, kr):
     for i in prange(x.shape[0]):
-        energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr, rp)
+        energy_body(i, x, props, nbr, cstate, fs, hertz, e_el, mr, rp, kr)
 
 
 # the same passes over a list of elements only (the others are asleep: geodem.fields.freeze)
@@ -624,11 +641,11 @@ def cpu_move_idx(idx, x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt,
 
 def cpu_force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
                   brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s,
-                  hertz, w, wa, dth, rfree, inertia, fdash, mr, rp):
+                  hertz, w, wa, dth, rfree, inertia, fdash, mr, rp, kr):
     for k in prange(idx.shape[0]):
         force_body(idx[k], x, v, a, dx, free, fload, props, m, eta, nbr, cstate,
                    fs, brate, q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, code_t,
-                   code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr, rp))
+                   code_s, hertz, (w, wa, dth, rfree, inertia, fdash, mr, rp, kr))
 
 
 # each contact once: slabs of ``slab`` consecutive elements in parallel (owner_body). The
@@ -636,7 +653,7 @@ def cpu_force_idx(idx, x, v, a, dx, free, fload, props, m, eta, nbr, cstate, fs,
 # ``ahead`` > 0: prefetch the partners of element i + ahead (prefetch_partners) and the rows
 # of element i + 4 ahead (prefetch_rows); 0: none.
 def cpu_force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
-                    cstart, spill, nslab, dt, code_t, code_s, hertz, dth, mr, rp, ahead):
+                    cstart, spill, nslab, dt, code_t, code_s, hertz, dth, mr, rp, kr, ahead):
     n = x.shape[0]
     for t in prange(nslab):
         hi = (t + 1) * n // nslab
@@ -647,15 +664,16 @@ def cpu_force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf
             if ahead > 0 and i + 4 * ahead < hi:
                 prefetch_rows(i + 4 * ahead, nbr, cstate, brate, fs)
             owner_body(i, hi, x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
-                       spill, cstart[i], dt, code_t, code_s, hertz, dth, mr, rp)
+                       spill, cstart[i], dt, code_t, code_s, hertz, dth, mr, rp, kr)
 
 
 def cpu_finish(v, a, dx, free, fload, m, eta, buf, inc_start, q_visc, q_bn,
-               q_bs, q_f, w_ext, g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr, rp):
+               q_bs, q_f, w_ext, g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr, rp,
+               kr):
     for i in prange(v.shape[0]):
         finish_body(i, v, a, dx, free, fload, m, eta, buf, inc_start,
                     q_visc, q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt,
-                    (w, wa, dth, rfree, inertia, fdash, mr, rp))
+                    (w, wa, dth, rfree, inertia, fdash, mr, rp, kr))
 
 
 def cpu_mirror(nbr, ostart, mirror, cstate, fs, mr):
@@ -672,12 +690,12 @@ def cpu_mirror(nbr, ostart, mirror, cstate, fs, mr):
 def cpu_steps(nsteps, code_t0, code_s0, x, v, a, dx, free, fload, props, m, eta, nbr, ostart,
               mirror, cstate, fs, brate, buf, cstart, spill, inc_start, nslab, q_visc,
               q_bn, q_bs, q_f, w_ext, g0, g1, g2, dt, hertz, ahead, w, wa, dth, rfree, inertia,
-              fdash, mr, rp):
+              fdash, mr, rp, kr):
     for k in range(nsteps):
         move(x, v, a, dx, free, fload, m, eta, q_visc, w_ext, dt, w, wa, dth, rfree, inertia,
              fdash)
         force_owner(x, dx, props, m, nbr, ostart, mirror, cstate, fs, brate, buf,
                     cstart, spill, nslab, dt, code_t0 + 2 * k, code_s0 + 2 * k, hertz, dth, mr, rp,
-                    ahead)
+                    kr, ahead)
         finish(v, a, dx, free, fload, m, eta, buf, inc_start, q_visc, q_bn,
-               q_bs, q_f, w_ext, g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr, rp)
+               q_bs, q_f, w_ext, g0, g1, g2, dt, w, wa, dth, rfree, inertia, fdash, mr, rp, kr)

@@ -484,6 +484,10 @@ def subset_state(state: State, keep, rebuild: bool = True) -> State:
     br = np.take_along_axis(state.brate[idx], order, 1)
     br[~np.take_along_axis(valid, order, 1)] = 1.0
     kw["brate"] = np.ascontiguousarray(br.astype(np.float32))
+    if state.row_stiffness:
+        kr = np.take_along_axis(state.krate[idx], order, 1)
+        kr[~np.take_along_axis(valid, order, 1)] = 1.0
+        kw["krate"] = np.ascontiguousarray(kr)
     out = State(dim=state.dim, gravity=np.array(state.gravity, float).copy(),
                 groups=dict(state.groups), thickness=state.thickness, hertz=state.hertz,
                 dt=state.dt, step=state.step, time=state.time, skin=state.skin, e0=state.e0,

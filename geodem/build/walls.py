@@ -67,6 +67,8 @@ def append_elements(state: State, x, r, m, *, kn, ks=None, mu=0.0, group: str | 
     kw["cstate"] = np.concatenate([state.cstate, np.zeros((k, w), np.int32)])
     kw["fs"] = np.concatenate([state.fs, np.zeros((k, w, state.dim))])
     kw["brate"] = np.concatenate([state.brate, np.ones((k, w), np.float32)])
+    if state.row_stiffness:
+        kw["krate"] = np.concatenate([state.krate, np.ones((k, w))])
     out = State(dim=state.dim, gravity=np.array(state.gravity, float).copy(),
                 groups=dict(state.groups), thickness=state.thickness, hertz=state.hertz,
                 dt=state.dt, step=state.step, time=state.time, skin=state.skin, e0=state.e0,

@@ -63,6 +63,8 @@ def check_layout(state) -> None:
         want.update(inertia=((n,), "f8"), rot_props=((n, 2), "f8"), mr=((n, w, nr), "f8"))
     if state.fdash is not None:
         want.update(fdash=((n, d), "f8"))
+    if state.row_stiffness:
+        want.update(krate=((n, w), "f8"))
     for name, (shape, kind) in want.items():
         arr = getattr(state, name)
         if not isinstance(arr, np.ndarray):
@@ -127,6 +129,10 @@ def validate_state(state) -> None:
                              f"finite and {rng}")
     if not ((state.brate >= 0) & np.isfinite(state.brate)).all():
         raise ValueError("bond_rate must be finite and >= 0")
+    if state.row_stiffness and not ((state.krate > 0) & (state.krate <= 1)).all():
+        i, k = (int(a[0]) for a in np.nonzero(~((state.krate > 0) & (state.krate <= 1))))
+        raise ValueError(f"contact stiffness factor krate[{i}, {k}] is {float(state.krate[i, k])!r}; "
+                         "allowed: 0 < krate <= 1 (a contact no stiffer than its elements)")
     rows, cols = np.nonzero(state.nbr >= 0)
     if rows.size:
         j = state.nbr[rows, cols]

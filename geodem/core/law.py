@@ -10,7 +10,10 @@ A contact ``ij`` is evaluated from element ``i``'s side with the branch vector
 with ``d``, so the row of ``j`` reaches the same decisions bit for bit and the forces are
 exactly opposite (PHYSICS.md section 1; Liu et al. 2017, MatDEM).
 
-Normal (tension positive): ``Xn = |d| - (R_i + R_j)``, ``Kn = kn_i kn_j / (kn_i + kn_j)``
+Normal (tension positive): ``Xn = |d| - (R_i + R_j)``, ``Kn = kf kn_i kn_j / (kn_i + kn_j)``,
+``kf`` the contact's stiffness factor (1 but for a softer interface between two regions:
+``geodem.core.state.enable_row_stiffness``; it scales ``Kn``, ``Ks`` and the Hertz force alike,
+not the strengths)
 
 * bonded: ``Fn = Kn Xn`` in tension and compression; tensile break when
   ``Fn >= BF = rate * min(kn_i xb_i, kn_j xb_j)``;
@@ -19,7 +22,7 @@ Normal (tension positive): ``Xn = |d| - (R_i + R_j)``, ``Kn = kn_i kn_j / (kn_i 
 
 Shear: the stored spring ``Fs`` (force on ``i``) is projected onto the current tangent plane,
 then ``Fs_trial = Fs + Ks dXs`` with ``dXs`` the tangential relative displacement of the centres
-in the step, ``Ks = ks_i ks_j/(ks_i + ks_j)``.
+in the step, ``Ks = kf ks_i ks_j/(ks_i + ks_j)``.
 
 * bonded: ``|Fs| <= Fsmax = rate * min(fs0_i, fs0_j) - mu Fn`` (``mu = min(mu_i, mu_j)``);
   exceeding it breaks the bond in shear; a pair broken in tension keeps nothing, a pair broken
@@ -93,12 +96,12 @@ def slip(sx, sy, sz, tx, ty, tz, scale, hk):
 
 def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
             ri, rj, kni, knj, ksi, ksj, xbi, xbj, fs0i, fs0j, mui, muj,
-            rate, cs, broken_t, broken_s, hertz):
+            rate, kf, cs, broken_t, broken_s, hertz):
     """Evaluate one contact from element i's side.
 
     Parameters: branch vector ``d = x_j - x_i`` [m]; relative displacement of the step
     ``dx_j - dx_i`` [m]; stored shear spring ``Fs`` [N]; element parameters of i and j; bond rate;
-    contact state ``cs`` (1 bonded, anything else unbonded); the state codes to store for a
+    contact stiffness factor ``kf`` (0 < kf <= 1); contact state ``cs`` (1 bonded, anything else unbonded); the state codes to store for a
     tensile / shear break in this step; ``hertz`` flag (0/1).
 
     Returns ``(Fn, nx, ny, nz, sx, sy, sz, cs_new, qn, qs, qf)``: normal force (tension +) along
@@ -111,8 +114,8 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
     ny = dy * inv
     nz = dz * inv
     xn = dist - (ri + rj)
-    kn = series(kni, knj)
-    ks = series(ksi, ksj)
+    kn = series(kni, knj) * kf
+    ks = series(ksi, ksj) * kf
 
     # 1/(2 Ks) once: every shear energy below is |F|^2 * hks
     hks = 0.5 / ks if ks > 0.0 else 0.0
@@ -162,7 +165,7 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
                 ei = kni / (math.pi * ri)
                 ej = knj / (math.pi * rj)
                 fh = (4.0 / 3.0) * series(ei, ej) * math.sqrt(series(ri, rj)) * (-xn) \
-                    * math.sqrt(-xn)
+                    * math.sqrt(-xn) * kf
                 qs += 0.5 * kn * xn * xn - 0.4 * fh * (-xn)
             return fn, nx, ny, nz, tx * scale, ty * scale, tz * scale, broken_s, qn, qs, qf
         return fn, nx, ny, nz, tx, ty, tz, cs, qn, qs, qf
@@ -174,7 +177,8 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
     if hertz:
         ei = kni / (math.pi * ri)
         ej = knj / (math.pi * rj)
-        fn = -(4.0 / 3.0) * series(ei, ej) * math.sqrt(series(ri, rj)) * (-xn) * math.sqrt(-xn)
+        fn = -(4.0 / 3.0) * series(ei, ej) * math.sqrt(series(ri, rj)) * (-xn) * math.sqrt(-xn) \
+            * kf
     else:
         fn = kn * xn
     lim = -mu * fn
@@ -221,15 +225,16 @@ def rolling(nx, ny, nz, tx, ty, tz, mx, my, mz, kr, lim):
     return ax, ay, az, p * p * hk
 
 
-def contact_energy(dx, dy, dz, sx, sy, sz, ri, rj, kni, knj, ksi, ksj, cs, hertz):
+def contact_energy(dx, dy, dz, sx, sy, sz, ri, rj, kni, knj, ksi, ksj, cs, hertz, kf=1.0):
     """Elastic energy of one contact from its current geometry and stored spring [J].
 
-    ``Fn^2/(2Kn) + |Fs|^2/(2Ks)``; a Hertz contact stores ``(2/5) |Fn| |Xn|``.
+    ``Fn^2/(2Kn) + |Fs|^2/(2Ks)``; a Hertz contact stores ``(2/5) |Fn| |Xn|``; ``kf`` the
+    contact's stiffness factor (:func:`contact`).
     """
     dist = math.sqrt(dx * dx + dy * dy + dz * dz)
     xn = dist - (ri + rj)
-    kn = series(kni, knj)
-    ks = series(ksi, ksj)
+    kn = series(kni, knj) * kf
+    ks = series(ksi, ksj) * kf
     e = spring_energy(sx * sx + sy * sy + sz * sz, ks)
     if cs == BONDED:
         return e + 0.5 * kn * xn * xn
@@ -237,7 +242,8 @@ def contact_energy(dx, dy, dz, sx, sy, sz, ri, rj, kni, knj, ksi, ksj, cs, hertz
         if hertz:
             ei = kni / (math.pi * ri)
             ej = knj / (math.pi * rj)
-            fn = (4.0 / 3.0) * series(ei, ej) * math.sqrt(series(ri, rj)) * (-xn) * math.sqrt(-xn)
+            fn = (4.0 / 3.0) * series(ei, ej) * math.sqrt(series(ri, rj)) * (-xn) \
+                * math.sqrt(-xn) * kf
             return e + 0.4 * fn * (-xn)
         return e + 0.5 * kn * xn * xn
     return e

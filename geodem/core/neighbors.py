@@ -56,6 +56,7 @@ _BLOCK = 256  # elements per parallel chunk (thread-local scratch is allocated p
 _CELL_SAFETY = 1.0 + 1e-9  # cell size margin against rounding in floor((x - lo) / h)
 _INT_OF_SIZE = {1: np.int8, 2: np.int16, 4: np.int32, 8: np.int64}
 _ONE_F32_BITS = int(np.array(1.0, np.float32).view(np.int32))  # brate default, as bits
+_ONE_F64_BITS = int(np.array(1.0, np.float64).view(np.int64))  # krate default, as bits
 
 
 def _ceil4(n: int) -> int:
@@ -191,11 +192,12 @@ def _in_range(x, r, skin, i, j):
 
 @njit(cache=True, parallel=True)
 def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
-                    nbr, cst, fs, br, mr):
+                    nbr, cst, fs, br, mr, kr):
     """Rebuild every row in place; returns the wanted entry count of each row.
 
-    ``fs``, ``mr`` (int64) and ``br`` (int32) are bit views of the float arrays; ``mr`` (the
-    rolling moments, rotation only) has zero columns for a translation-only model.
+    ``fs``, ``mr``, ``kr`` (int64) and ``br`` (int32) are bit views of the float arrays;
+    ``mr`` (the rolling moments, rotation only) has zero columns for a translation-only model,
+    ``kr`` (the contact stiffness factors, one column) none without them.
 
     Row ``i`` reads only its own old row (copied to scratch first), so the update is in
     place and race free. A row whose count exceeds the width is left untouched (the caller
@@ -206,12 +208,15 @@ def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
     counts = np.zeros(n, np.int32)
     nblk = (n + _BLOCK - 1) // _BLOCK
     one = np.int32(_ONE_F32_BITS)
+    one64 = np.int64(_ONE_F64_BITS)
+    nkr = kr.shape[2]
     for b in prange(nblk):
         onb = np.empty(w, np.int32)
         ocs = np.empty(w, np.int32)
         ofs = np.empty((w, dim), np.int64)
         nmr = mr.shape[2]
         omr = np.empty((w, nmr), np.int64)
+        okr = np.empty((w, nkr), np.int64)
         obr = np.empty(w, np.int32)
         new = np.empty(w, np.int32)
         p1 = min(n, (b + 1) * _BLOCK)
@@ -229,6 +234,8 @@ def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
                         ofs[m, d] = fs[i, k, d]
                     for d in range(nmr):
                         omr[m, d] = mr[i, k, d]
+                    for d in range(nkr):
+                        okr[m, d] = kr[i, k, d]
                     obr[m] = br[i, k]
                     m += 1
             # geometric neighbours from the 9 / 27 surrounding cells
@@ -316,6 +323,10 @@ def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
                     vm = omr[found, d] if found >= 0 else 0
                     if mr[i, a, d] != vm:
                         mr[i, a, d] = vm
+                for d in range(nkr):
+                    vk = okr[found, d] if found >= 0 else one64
+                    if kr[i, a, d] != vk:
+                        kr[i, a, d] = vk
             for a in range(cnt, w):
                 if nbr[i, a] != -1:
                     nbr[i, a] = -1
@@ -329,6 +340,9 @@ def _rebuild_kernel(x, r, skin, nc0, nc1, nc2, cell, order, start, xr,
                 for d in range(nmr):
                     if mr[i, a, d] != 0:
                         mr[i, a, d] = 0
+                for d in range(nkr):
+                    if kr[i, a, d] != one64:
+                        kr[i, a, d] = one64
     return counts
 
 
@@ -353,6 +367,10 @@ def _set_width(state: State, w: int) -> None:
         mr = np.zeros((n, w, state.nrot))
         mr[:, :c] = state.mr[:, :c]
         state.mr = mr
+    if state.row_stiffness:
+        kr = np.ones((n, w))
+        kr[:, :c] = state.krate[:, :c]
+        state.krate = kr
 
 
 def _normalize_rows(state: State) -> None:
@@ -362,6 +380,8 @@ def _normalize_rows(state: State) -> None:
              ("fs", np.float64, (n, -1, dim)), ("brate", np.float32, (n, -1)))
     if state.rotation:
         specs = specs + (("mr", np.float64, (n, -1, state.nrot)),)
+    if state.row_stiffness:
+        specs = specs + (("krate", np.float64, (n, -1)),)
     w = state.nbr.shape[1] if state.nbr.ndim == 2 else -1
     for name, dt, shape in specs:
         a = getattr(state, name)
@@ -375,7 +395,10 @@ def _normalize_rows(state: State) -> None:
 def _row_bits(state: State):
     # same memory, integer dtypes: the kernel moves per-pair state bit for bit
     mr = state.mr.view(np.int64) if state.rotation else np.zeros((state.n, 0, 0), np.int64)
-    return (state.nbr, state.cstate, state.fs.view(np.int64), state.brate.view(np.int32), mr)
+    kr = state.krate.view(np.int64).reshape(state.n, -1, 1) if state.row_stiffness else \
+        np.zeros((state.n, 0, 0), np.int64)
+    return (state.nbr, state.cstate, state.fs.view(np.int64), state.brate.view(np.int32), mr,
+            kr)
 
 
 def _check_skin(skin) -> float:
@@ -625,6 +648,8 @@ def rows_from_pairs(state: State, i, j, bonded: bool = True, brate=None) -> None
     state.nbr, state.cstate, state.fs, state.brate = nbr, cst, fs, br
     if state.rotation:
         state.mr = np.zeros((n, w, state.nrot))
+    if state.row_stiffness:
+        state.krate = np.ones((n, w))
 
 
 # ----------------------------------------------------------------------------- spatial sort
@@ -705,11 +730,12 @@ def _copy_rows(src, dst):
 
 
 @njit(cache=True, parallel=True)
-def _sort_row_arrays(nbr, cst, fs, br, mr):
+def _sort_row_arrays(nbr, cst, fs, br, mr, kr):
     # insertion sort of each row by neighbour index, moving the pair state (bit views) along
     n, w = nbr.shape
     dim = fs.shape[2]
     nmr = mr.shape[2]
+    nkr = kr.shape[2]
     moved = 0
     for i in prange(n):
         for a in range(1, w):
@@ -723,10 +749,13 @@ def _sort_row_arrays(nbr, cst, fs, br, mr):
             b = br[i, a]
             f = np.empty(dim, np.int64)
             g = np.empty(nmr, np.int64)
+            h = np.empty(nkr, np.int64)
             for d in range(dim):
                 f[d] = fs[i, a, d]
             for d in range(nmr):
                 g[d] = mr[i, a, d]
+            for d in range(nkr):
+                h[d] = kr[i, a, d]
             q = a - 1
             while q >= 0 and nbr[i, q] > v:
                 nbr[i, q + 1] = nbr[i, q]
@@ -736,6 +765,8 @@ def _sort_row_arrays(nbr, cst, fs, br, mr):
                     fs[i, q + 1, d] = fs[i, q, d]
                 for d in range(nmr):
                     mr[i, q + 1, d] = mr[i, q, d]
+                for d in range(nkr):
+                    kr[i, q + 1, d] = kr[i, q, d]
                 q -= 1
             nbr[i, q + 1] = v
             cst[i, q + 1] = c
@@ -744,6 +775,8 @@ def _sort_row_arrays(nbr, cst, fs, br, mr):
                 fs[i, q + 1, d] = f[d]
             for d in range(nmr):
                 mr[i, q + 1, d] = g[d]
+            for d in range(nkr):
+                kr[i, q + 1, d] = h[d]
     return moved
 
 
@@ -1041,9 +1074,9 @@ def check_rows(state: State) -> None:
     """Validate the row invariants; raise ValueError naming the first bad row/column.
 
     Checks: compact rows, indices in range, no self contacts, no duplicates, every entry
-    mirrored (``j`` in row ``i`` iff ``i`` in row ``j``) with equal ``cstate`` and
-    ``brate`` on both sides. (``fs`` is not compared: its sign convention belongs to the
-    force law.)
+    mirrored (``j`` in row ``i`` iff ``i`` in row ``j``) with equal ``cstate``,
+    ``brate`` and ``krate`` (with it) on both sides. (``fs`` is not compared: its sign
+    convention belongs to the force law.)
     """
     err, col = _check_rows(state.nbr, state.cstate, state.brate)
     bad = np.flatnonzero(err)
@@ -1052,3 +1085,20 @@ def check_rows(state: State) -> None:
         k = int(col[i])
         raise ValueError(f"row {i}, column {k} (nbr={int(state.nbr[i, k])}): "
                          f"{_CHECK_MSG[int(err[i])]}")
+    if state.row_stiffness:
+        _check_mirrored(state, state.krate, "krate")
+
+
+def _check_mirrored(state: State, rows: np.ndarray, name: str) -> None:
+    """ValueError unless the per-row values ``rows`` of every pair are equal on both sides
+    (the rows themselves already mirrored)."""
+    i, a = np.nonzero(state.nbr >= 0)
+    j = state.nbr[i, a].astype(np.int64)
+    n = state.n
+    there = np.argsort(j * n + i, kind="stable")  # (j, i) keys in the order of (i, j) keys
+    here = np.argsort(i.astype(np.int64) * n + j, kind="stable")
+    differ = np.flatnonzero(rows[i[here], a[here]] != rows[i[there], a[there]])
+    if differ.size:
+        p = here[differ[0]]
+        raise ValueError(f"row {int(i[p])}, column {int(a[p])} (nbr={int(j[p])}): {name} "
+                         "differs from the mirror entry")

@@ -54,6 +54,12 @@ translate only, PHYSICS.md section 1). ``nr`` = 1 in 2-D (about z), 3 in 3-D.
                                     [-] (1: Iwashita & Oda's default)
     mr           (N, W, nr) float64 rolling-resistance moment acting on the row's element [N m]
 
+Contact stiffness per row (optional, ``None`` unless :func:`enable_row_stiffness` was called)
+    krate        (N, W)   float64   stiffness factor of the row's contact: ``Kn`` and ``Ks``
+                                    (and so the rolling spring and the dashpot) are the series
+                                    stiffness of the two elements times ``krate`` [-]; an
+                                    interface softer than the rocks it joins (1 elsewhere)
+
 Contact damping (optional, ``None`` unless :func:`enable_contact_damping` was called)
     fdash        (N, dim) float64   net normal-dashpot force of the last force pass [N]
 
@@ -75,6 +81,7 @@ ACCUMULATORS = ("q_visc", "q_break_n", "q_break_s", "q_fric", "w_ext")
 ROW_ARRAYS = ("nbr", "cstate", "fs", "brate")
 ROT_ELEMENT = ("w", "wa", "dth", "rfree", "inertia", "rot_props")  # present only with rotation
 ROT_ROWS = ("mr",)
+KROW_ROWS = ("krate",)  # present only with a per-row contact stiffness
 DAMP_ELEMENT = ("fdash",)  # present only with contact damping
 
 # contact state codes
@@ -133,6 +140,8 @@ class State:
     # contact damping: the net dashpot force of the last force pass (its heat is booked over
     # this step and the next)
     fdash: np.ndarray | None = None
+    # per-row contact stiffness factor (None: every contact at its elements' series stiffness)
+    krate: np.ndarray | None = None
     gravity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     groups: dict = field(default_factory=dict)  # name -> group id
     thickness: float = 0.0  # 2-D disc thickness [m] (information; masses are given)
@@ -158,6 +167,11 @@ class State:
         return self.w is not None
 
     @property
+    def row_stiffness(self) -> bool:
+        """True when the contacts carry their own stiffness factor (``krate``)."""
+        return self.krate is not None
+
+    @property
     def nrot(self) -> int:
         """Rotational degrees of freedom per element: 1 in 2-D, 3 in 3-D."""
         return 1 if self.dim == 2 else 3
@@ -168,11 +182,14 @@ class State:
             names = names + ROT_ELEMENT + ROT_ROWS
         if self.fdash is not None:
             names = names + DAMP_ELEMENT
+        if self.row_stiffness:
+            names = names + KROW_ROWS
         return names
 
     def row_array_names(self):
         """The per-contact arrays (carried by pair identity across neighbour rebuilds)."""
-        return ROW_ARRAYS + (ROT_ROWS if self.rotation else ())
+        return ROW_ARRAYS + (ROT_ROWS if self.rotation else ()) + \
+            (KROW_ROWS if self.row_stiffness else ())
 
     def arrays(self) -> dict:
         return {k: getattr(self, k) for k in self.array_names()}
@@ -316,6 +333,28 @@ def scale_bond_rate(state: State, sel, factor: float) -> None:
     state.brate[sel] = (state.brate[sel].astype(np.float64) * factor).astype(np.float32)
 
 
+def enable_row_stiffness(state: State) -> State:
+    """Give every contact row its own stiffness factor ``krate`` (in place; returns
+    ``state``), 1 everywhere to start with: nothing changes until a factor is set
+    (:func:`scale_row_stiffness`). The factor moves with its pair across neighbour rebuilds
+    like ``brate``; a new pair starts at 1. Calling it again keeps the factors set."""
+    if state.krate is None:
+        state.krate = np.ones(state.nbr.shape)
+    return state
+
+
+def scale_row_stiffness(state: State, sel, factor: float) -> None:
+    """Multiply the contact stiffness factor of the rows ``sel`` (a boolean mask or an index
+    tuple into the (N, W) rows) by ``factor`` (0 < factor <= 1: a contact no stiffer than its
+    elements, so the stable time step stays the elements'), switching the factors on first
+    (:func:`enable_row_stiffness`). Give both rows of each pair: the two sides must agree."""
+    f = float(factor)
+    if not (0.0 < f <= 1.0):
+        raise ValueError(f"contact stiffness factor {factor!r}; allowed: 0 < factor <= 1")
+    enable_row_stiffness(state)
+    state.krate[sel] *= f
+
+
 def inertia_of(state: State) -> np.ndarray:
     """Moment of inertia of each element [kg m^2]: a solid sphere ``(2/5) m r^2`` in 3-D, a
     disc (cylinder about its axis) ``(1/2) m r^2`` in 2-D."""
@@ -424,7 +463,7 @@ def take(state: State, keep) -> State:
     order = np.argsort(~valid, axis=1, kind="stable")
     ok = np.take_along_axis(valid, order, axis=1)
     rows = set(state.row_array_names())
-    empty = {"nbr": -1, "cstate": 0, "fs": 0.0, "brate": 1.0, "mr": 0.0}
+    empty = {"nbr": -1, "cstate": 0, "fs": 0.0, "brate": 1.0, "mr": 0.0, "krate": 1.0}
     kw = {}
     for f in fields(state):
         val = getattr(state, f.name)

@@ -48,15 +48,16 @@ def stiffness_pairs(state):
     i = np.repeat(np.arange(state.n), state.width)
     j = state.nbr.ravel()
     c = state.cstate.ravel()
+    kf = state.krate.ravel() if state.row_stiffness else np.ones(j.size)
     ok = (j >= 0) & (i < j)
-    i, j, c = i[ok], j[ok], c[ok]
+    i, j, c, kf = i[ok], j[ok], c[ok], kf[ok]
     dx = state.x[j] - state.x[i]
     dist = np.linalg.norm(dx, axis=1)
     touch = dist < state.r[i] + state.r[j]
     keep = (c == BONDED) | touch
-    i, j, dx, dist = i[keep], j[keep], dx[keep], dist[keep]
-    kn = series_array(state.kn[i], state.kn[j])
-    ks = series_array(state.ks[i], state.ks[j])
+    i, j, dx, dist, kf = i[keep], j[keep], dx[keep], dist[keep], kf[keep]
+    kn = series_array(state.kn[i], state.kn[j]) * kf
+    ks = series_array(state.ks[i], state.ks[j]) * kf
     return i, j, kn, ks, dx / dist[:, None]
 
 

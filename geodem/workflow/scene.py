@@ -17,6 +17,12 @@ Regions are shapes of one material each, or the coloured regions of a **label im
 (colour -> region and material, with a pixel size and an origin; pixels of an ``empty`` colour
 hold no element: a cavity drawn on the image).
 
+The bonds across two regions are the **interface**: ``interface_strength`` scales their
+strength (the breaking force and the shear strength), ``interface_stiffness`` their stiffness
+(``Kn`` and ``Ks`` of the contact, through a per-contact stiffness factor:
+:func:`geodem.core.state.scale_row_stiffness`), so a bedding plane or a cemented seam can be
+weaker and softer than the rocks it joins without a region of its own.
+
 Under a terrain domain a region or group may be a ``surface``: the side of a layer boundary
 given as an elevation raster, or of a depth below the ground (a constant, or a raster of
 depths, e.g. a sliding surface), rasters read onto the terrain raster's grid. A terrain
@@ -25,7 +31,7 @@ the ground and below the surfaces of its surface regions (a sliding surface, a w
 coarser ones (up to ``factor`` d) in the deep ground, each element with its material's
 parameters at its own nominal diameter (docs/graded.md).
 
-Not built yet: an interface material, several materials in one specimen fill.
+Not built yet: several materials in one specimen fill.
 """
 from __future__ import annotations
 
@@ -419,6 +425,11 @@ class Scene(ModelBase):
         1.0, gt=0, le=1, description="Bonded interfaces: the breaking displacement xb and shear "
                                      "strength fs0 of a bond across two regions times this "
                                      "(1: as strong as the weaker element)")
+    interface_stiffness: float = F(
+        1.0, gt=0, le=1, description="Bonded interfaces: the normal and shear stiffness (Kn, "
+                                     "Ks) of a bond across two regions times this (1: the "
+                                     "series stiffness of its two elements); its strength "
+                                     "(breaking force) is interface_strength's")
     gravity: Optional[list[float]] = F(None, unit="m/s^2", min_length=2, max_length=3,
                                        description="Gravity vector (dim components)")
     groups: dict[Name, SceneGroup] = F({}, description="Named element groups")
@@ -536,10 +547,10 @@ class Scene(ModelBase):
             if np.any(hi - lo < self.d):
                 out.append((("domain",), f"the domain is thinner than one element (d = "
                                          f"{self.d:g} m) along an axis"))
-        if self.interface_strength != 1.0 and self.interfaces == "joint":
-            out.append((("interface_strength",), "a joint has no bonds to weaken; allowed: "
-                                                 "interfaces: bonded with interface_strength "
-                                                 "< 1, or a joint"))
+        for key in ("interface_strength", "interface_stiffness"):
+            if getattr(self, key) != 1.0 and self.interfaces == "joint":
+                out.append(((key,), f"a joint has no bonds to weaken or soften; allowed: "
+                                    f"interfaces: bonded with {key} < 1, or a joint"))
         if self.gravity is not None and len(self.gravity) != self.dim:
             out.append((("gravity",), f"{len(self.gravity)} components for dim = {self.dim}"))
         names = [n for n, _, _ in self.slots() if n is not None]
@@ -754,6 +765,9 @@ class Scene(ModelBase):
         if self.interfaces == "bonded" and self.interface_strength != 1.0:
             info["interface_bonds_weakened"] = weaken_interfaces(st, region,
                                                                  self.interface_strength)
+        if self.interfaces == "bonded" and self.interface_stiffness != 1.0:
+            info["interface_bonds_softened"] = soften_interfaces(st, region,
+                                                                 self.interface_stiffness)
         self._add_groups(st, region, d_nom)
         if self.sort:
             spatial_sort(st)
@@ -1136,6 +1150,19 @@ def weaken_interfaces(state, region, factor: float) -> int:
 
     across = _across(state, region)
     scale_bond_rate(state, across, factor)
+    return int(across.sum()) // 2
+
+
+def soften_interfaces(state, region, factor: float) -> int:
+    """Scale the stiffness (``Kn`` and ``Ks``, PHYSICS.md section 1) of every bond across two
+    regions by ``factor`` (0 < factor <= 1) through the rows' contact stiffness factor: a
+    softer interface whose strength (breaking force) stays as it is, so it breaks at a
+    displacement ``1/factor`` times larger; returns the number of bonds. A contact the
+    interface's elements make anew later has the elements' own stiffness."""
+    from geodem.core.state import scale_row_stiffness
+
+    across = _across(state, region)
+    scale_row_stiffness(state, across, factor)
     return int(across.sum()) // 2
 
 

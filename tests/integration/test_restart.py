@@ -21,8 +21,13 @@ def test_same_seed_same_result(backend):
         assert np.array_equal(outs[0][k], outs[1][k]), k
 
 
-def test_checkpoint_resume_bit_identical(tmp_path):
+@pytest.mark.parametrize("softened", [False, True])
+def test_checkpoint_resume_bit_identical(tmp_path, softened):
     st = make_specimen(n=400, dim=3, seed=3)
+    if softened:  # per-contact stiffness factors, carried through rebuilds and the checkpoint
+        from tests.unit.test_row_stiffness import _soften
+
+        _soften(st)
     st.skin = 0.02 * 0.01  # small skin: rows are rebuilt during the run
     ref = Simulation(st.copy(), backend="numba", check_every=5)
     ref.run(60)
@@ -34,7 +39,8 @@ def test_checkpoint_resume_bit_identical(tmp_path):
     resumed.run(35)
     assert ref.rebuilds >= 1 and resumed.rebuilds >= 1  # history carried across rebuilds
     a, b = snapshot(ref.state), snapshot(resumed.state)
-    for k in ("x", "v", "a", "fs", "cstate", "nbr", "q_visc", "q_break_n", "q_break_s"):
+    for k in ("x", "v", "a", "fs", "cstate", "nbr", "q_visc", "q_break_n", "q_break_s") + \
+            (("krate",) if softened else ()):
         assert np.array_equal(a[k], b[k]), k
     assert resumed.state.step == ref.state.step == 60
     la, lb = ref.crack_log(), resumed.crack_log()

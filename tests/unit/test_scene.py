@@ -502,6 +502,17 @@ def test_elastic_elements_are_the_rock_on_the_lattice():
         _cfg(fill="random", elements="elastic", material="sand")
 
 
+def _interface(**model):
+    """A lattice box split at y = 0.1 m into two regions of one rock, with ``model``'s
+    interface options: ``(built, bond rows i, j, across)`` (``across``: the bond crosses
+    the split)."""
+    built = _build(regions=[{"name": "low", "material": "rock", "shape": {"below": 0.1}}],
+                   **model)
+    i, j = _bonds(built.state)
+    low = built.state.x[:, 1] < 0.1
+    return built, i, j, low[i] != low[j]
+
+
 def test_a_weak_interface_scales_the_bonds_across_and_breaks_first():
     """interface_strength 0.5: the bonds across the two regions (and only they) carry half the
     breaking force. A bond of two equal elements breaks at Fn = kn xb with Fn = (kn / 2) x
@@ -510,13 +521,9 @@ def test_a_weak_interface_scales_the_bonds_across_and_breaks_first():
     1.5 xb, so exactly the inclined bonds across the interface break, in tension, at once."""
     from geodem.core.engine import Simulation
 
-    regions = [{"name": "low", "material": "rock", "shape": {"below": 0.1}}]
-    whole = _build(regions=regions).state
-    built = _build(regions=regions, interface_strength=0.5)
+    whole = _interface()[0].state
+    built, i, j, across = _interface(interface_strength=0.5)
     st = built.state
-    i, j = _bonds(st)
-    low = st.x[:, 1] < 0.1
-    across = low[i] != low[j]
     assert built.info["interface_bonds_weakened"] == int(across.sum()) // 2 > 0
     ok = (st.nbr >= 0) & (st.cstate == BONDED)
     assert np.all(st.brate[ok][across] == np.float32(0.5))
@@ -535,3 +542,32 @@ def test_a_joint_has_no_interface_strength():
     with pytest.raises(WorkflowError, match="interface_strength"):
         _cfg(regions=[{"name": "low", "material": "clay", "shape": {"below": 0.1}}],
              interfaces="joint", interface_strength=0.5)
+
+
+def test_a_soft_interface_holds_where_the_rock_breaks():
+    """interface_stiffness 0.5: the bonds across the two regions (and only they) have half the
+    stiffness and the same breaking force, so they break at twice the stretch: 4 xb instead of
+    2 xb (two equal elements in series, Fn = kf kn/2 x stretch against kn xb). Stretched by
+    eps = 3 xb / d along y, every inclined lattice bond opens by d eps sin^2(60 deg) =
+    2.25 xb: all of them break but the softened ones across the interface."""
+    from geodem.core.engine import Simulation
+
+    built, i, j, across = _interface(interface_stiffness=0.5)
+    st = built.state
+    assert built.info["interface_bonds_softened"] == int(across.sum()) // 2 > 0
+    ok = (st.nbr >= 0) & (st.cstate == BONDED)
+    assert np.all(st.krate[ok][across] == 0.5) and np.all(st.krate[ok][~across] == 1.0)
+    inclined = np.abs(st.x[i, 1] - st.x[j, 1]) > 1e-6
+    st.x[:, 1] *= 1.0 + 3.0 * ROCK["xb"] / 0.02
+    sim = Simulation(st, backend="numba")
+    sim.run(1)
+    log = sim.crack_log()
+    assert len(log) == int((inclined & ~across).sum()) // 2 and np.all(log["type"] == 1)
+    broken = {(min(a, b), max(a, b)) for a, b in zip(log["i"], log["j"])}
+    assert not broken & {(min(a, b), max(a, b)) for a, b in zip(i[across], j[across])}
+
+
+def test_a_joint_has_no_interface_stiffness():
+    with pytest.raises(WorkflowError, match="interface_stiffness"):
+        _cfg(regions=[{"name": "low", "material": "clay", "shape": {"below": 0.1}}],
+             interfaces="joint", interface_stiffness=0.5)
