@@ -13,7 +13,9 @@ everywhere in geodem) or, with ``interfaces: joint``, cut: the regions then touc
 cement, like the two sides of a joint. Named **groups** select elements by sides of the domain,
 by region, by box or by any shape, for any step (fix, velocity, load, heat, ...).
 
-Regions are shapes of one material each, or the coloured regions of a **label image**
+Regions are shapes of one material each (a box, a polygon in 2-D or a prism in 3-D, a disc, a
+half-space, a band, and their unions, intersections and differences; under a terrain also the
+sides of surfaces and the cells of a raster mask), or the coloured regions of a **label image**
 (colour -> region and material, with a pixel size and an origin; pixels of an ``empty`` colour
 hold no element: a cavity drawn on the image).
 
@@ -133,6 +135,46 @@ class SceneSurface(Strict):
         return x[:, -1] > z if self.side == "above" else x[:, -1] < z
 
 
+class ScenePrism(Strict):
+    polygon: list[list[float]] = F(..., unit="m", min_length=3,
+                                   description="Polygon vertices [u, v] in the plane normal to "
+                                               "axis (z: [x, y], y: [x, z], x: [y, z])")
+    axis: Literal["x", "y", "z"] = F("z", description="Extrusion axis")
+    range: list[float] = F(..., unit="m", min_length=2, max_length=2,
+                           description="[from, to] along the axis (from < to)")
+
+    @model_validator(mode="after")
+    def _check(self):
+        if any(len(v) != 2 for v in self.polygon):
+            raise ValueError("prism polygon: vertices of 2 coordinates [u, v]")
+        if not self.range[0] < self.range[1]:
+            raise ValueError(f"prism range {self.range}: allowed [from, to] with from < to")
+        return self
+
+    def shape(self):
+        """The prism as a :class:`geodem.build.shapes.Polygon` (3-D)."""
+        from geodem.build.shapes import Polygon
+
+        return Polygon(tuple(map(tuple, self.polygon)), axis=self.axis, z0=self.range[0],
+                       z1=self.range[1])
+
+
+class SceneHalfSpace(Strict):
+    point: list[float] = F(..., unit="m", min_length=2, max_length=3,
+                           description="A point of the bounding plane (a line in 2-D)")
+    normal: list[float] = F(..., min_length=2, max_length=3,
+                            description="Normal of the plane, pointing into the half-space")
+
+
+class SceneRasterMask(Strict):
+    raster: str = F(..., description="Raster read onto the terrain's grid (any CRS, as the "
+                                     "surfaces' rasters)")
+    above: float = F(0.5, description="Centres where the raster's value (bilinear between "
+                                      "cell centres, as every raster here) is above this: "
+                                      "0.5 puts a 0/1 mask's boundary on its cells' edges; "
+                                      "nodata cells select nothing")
+
+
 class TerrainFrame:
     """How a terrain scene's model coordinates meet its rasters: ``plan(x)`` the local raster
     (x, y) of model points (3-D: x[:, :2]; 2-D: along the section line), ``ground(xy)`` the
@@ -158,16 +200,31 @@ class TerrainFrame:
 
 
 class Shape(Strict):
-    """One of: ``box``, ``polygon`` (2-D), ``disc``, ``below`` or ``above`` (a horizontal plane:
-    the last coordinate, y in 2-D and z in 3-D, below or above the value), ``band`` (a planar
-    layer of a thickness: a dipping weak layer), ``surface`` (a side of a surface under a
-    terrain domain: a layer boundary or a depth below the ground, from rasters), or, for a
-    domain only, ``terrain``."""
+    """One of: ``box``, ``polygon`` (2-D), ``prism`` (3-D: a polygon extruded along an axis),
+    ``disc``, ``below`` or ``above`` (a horizontal plane: the last coordinate, y in 2-D and z
+    in 3-D, below or above the value), ``half_space`` (the side of any plane the normal points
+    to), ``band`` (a planar layer of a thickness: a dipping weak layer), ``surface`` (a side of
+    a surface under a terrain domain: a layer boundary or a depth below the ground, from
+    rasters), ``raster_mask`` (terrain domain: the centres over a raster's cells above a
+    value), the combinations ``union``, ``intersection`` and ``difference`` (the first shape
+    less the others) of shapes, or, for a domain only, ``terrain``."""
 
     box: Optional[SceneBox] = F(None, description="Box of element centres [m]")
     polygon: Optional[list[list[float]]] = F(None, unit="m", description="Polygon vertices "
                                              "(2-D, at least 3 [x, y] pairs)")
+    prism: Optional[ScenePrism] = F(None, description="3-D: a polygon extruded along an axis")
     disc: Optional[SceneDisc] = F(None, description="Disc (2-D) or cylinder along y (3-D)")
+    half_space: Optional[SceneHalfSpace] = F(None, description="Centres on the side of a plane "
+                                                               "its normal points to")
+    raster_mask: Optional[SceneRasterMask] = F(None, description="Terrain domain: centres over "
+                                                                 "a raster's cells above a value")
+    union: Optional[list["Shape"]] = F(None, min_length=1,
+                                       description="Centres in any of these shapes")
+    intersection: Optional[list["Shape"]] = F(None, min_length=1,
+                                              description="Centres in all of these shapes")
+    difference: Optional[list["Shape"]] = F(None, min_length=2,
+                                            description="Centres in the first shape and in "
+                                                        "none of the others")
     below: Optional[float] = F(None, unit="m", description="Centres with the last "
                                                            "coordinate below this")
     above: Optional[float] = F(None, unit="m", description="Centres with the last "
@@ -181,7 +238,7 @@ class Shape(Strict):
 
     @model_validator(mode="after")
     def _one(self):
-        names = ("box", "polygon", "disc", "below", "above", "band", "surface", "terrain")
+        names = SHAPE_KEYS
         given = [k for k in names if getattr(self, k) is not None]
         if len(given) != 1:
             raise ValueError(f"give exactly one of {', '.join(names)} (got "
@@ -191,17 +248,49 @@ class Shape(Strict):
             raise ValueError("polygon: at least 3 vertices of 2 coordinates [x, y]")
         return self
 
+    def parts(self):
+        """``(key, shapes)`` of a combination (``union``, ``intersection``, ``difference``),
+        else None."""
+        for key in COMBINATIONS:
+            if getattr(self, key) is not None:
+                return key, getattr(self, key)
+        return None
+
+    def leaves(self, path):
+        """``[(path, shape)]`` of the shapes that are not combinations, nested ones included."""
+        comb = self.parts()
+        if comb is None:
+            return [(path, self)]
+        key, shapes = comb
+        return [leaf for k, sh in enumerate(shapes) for leaf in sh.leaves(path + (key, k))]
+
     def problems(self, dim, path):
         out = []
+        for where, sh in self.leaves(path):
+            out += sh._own_problems(dim, where)
+            if sh.terrain is not None and where != path:
+                out.append((where + ("terrain",), "a terrain is a domain, not a part of a "
+                                                  "combination"))
+        return out
+
+    def _own_problems(self, dim, path):
+        out = []
         if self.polygon is not None and dim != 2:
-            out.append((path + ("polygon",), "a polygon is 2-D only; use a box or a disc"))
-        for key, obj in (("box", self.box), ("disc", self.disc), ("band", self.band)):
+            out.append((path + ("polygon",), "a polygon is 2-D only; in 3-D use a prism, a box "
+                                             "or a disc"))
+        if self.prism is not None and dim != 3:
+            out.append((path + ("prism",), "a prism is 3-D only; in 2-D use a polygon"))
+        for key, obj in (("box", self.box), ("disc", self.disc), ("band", self.band),
+                         ("half_space", self.half_space)):
             if obj is None:
                 continue
-            for f in {"box": ("min", "max"), "disc": ("center",),
-                      "band": ("point", "normal")}[key]:
+            for f in {"box": ("min", "max"), "disc": ("center",), "band": ("point", "normal"),
+                      "half_space": ("point", "normal")}[key]:
                 if len(getattr(obj, f)) != dim:
                     out.append((path + (key, f), f"{dim} coordinates needed"))
+        if self.half_space is not None and not any(self.half_space.normal):
+            out.append((path + ("half_space", "normal"), "the normal is zero; give a "
+                                                         "direction"))
         return out
 
     def mask(self, x, frame=None) -> np.ndarray:
@@ -209,6 +298,25 @@ class Shape(Strict):
         terrain domain (a ``surface`` needs it)."""
         from geodem.build.shapes import box_mask, disc_mask, polygon_mask
 
+        comb = self.parts()
+        if comb is not None:
+            key, shapes = comb
+            out = shapes[0].mask(x, frame)
+            for sh in shapes[1:]:
+                m = sh.mask(x, frame)
+                out = out | m if key == "union" else out & m if key == "intersection" else \
+                    out & ~m
+            return out
+        if self.prism is not None:
+            return self.prism.shape().mask(x)
+        if self.half_space is not None:
+            return (x - np.asarray(self.half_space.point, float)) @ \
+                np.asarray(self.half_space.normal, float) > 0.0
+        if self.raster_mask is not None:
+            if frame is None:
+                raise ValueError("a raster mask needs a terrain domain")
+            value = frame.raster(self.raster_mask.raster).elevation(frame.plan(x))
+            return np.isfinite(value) & (value > self.raster_mask.above)
         if self.box is not None:
             return box_mask(x, self.box.min, self.box.max)
         if self.polygon is not None:
@@ -301,6 +409,14 @@ class Region(Strict):
         if self.image is None:
             return [(self.name, self.material)]
         return [(name, c.material) for name, c in self.image.colours.items()]
+
+
+COMBINATIONS = ("union", "intersection", "difference")
+#: shapes that select a part of a domain but do not make one
+DOMAIN_REFUSED = ("below", "above", "half_space", "band", "surface", "raster_mask") + COMBINATIONS
+SHAPE_KEYS = ("box", "polygon", "prism", "disc", "below", "above", "half_space", "band",
+              "surface", "raster_mask", "terrain") + COMBINATIONS
+Shape.model_rebuild()
 
 
 class SceneGroup(Strict):
@@ -470,6 +586,9 @@ class Scene(ModelBase):
         if s.polygon is not None:
             v = np.asarray(s.polygon, float)
             return v.min(axis=0), v.max(axis=0)
+        if s.prism is not None:
+            lo, hi = s.prism.shape().bounds
+            return np.asarray(lo, float), np.asarray(hi, float)
         if s.disc is not None:
             c = np.asarray(s.disc.center, float)
             return c - s.disc.radius, c + s.disc.radius
@@ -535,10 +654,10 @@ class Scene(ModelBase):
     def check(self, cfg):
         out = []
         dom = self.domain
-        if ((dom.disc is not None and self.dim != 2) or dom.below is not None
-                or dom.above is not None or dom.band is not None):
-            out.append((("domain",), "the domain is a box, a polygon or a disc (2-D) or a "
-                                     "terrain"))
+        if ((dom.disc is not None and self.dim != 2) or
+                any(getattr(dom, k) is not None for k in DOMAIN_REFUSED)):
+            out.append((("domain",), "the domain is a box, a polygon or a disc (2-D), a prism "
+                                     "(3-D) or a terrain"))
         out += dom.problems(self.dim, ("domain",))
         if dom.terrain is not None:
             out += self._terrain_problems()
@@ -680,19 +799,32 @@ class Scene(ModelBase):
         return []
 
     def _surface_problems(self, shape, path):
-        """A surface shape: a terrain domain that reads, and rasters that read onto its grid."""
+        """The surfaces and raster masks of a shape (nested ones too): a terrain domain that
+        reads, and rasters that read onto its grid."""
+        out = []
+        for where, sh in shape.leaves(path):
+            out += self._raster_problems(sh, where)
+        return out
+
+    def _raster_problems(self, shape, path):
+        """One shape's surface or raster mask (:meth:`_surface_problems`)."""
         from geodem.geo.errors import GeometryError
         from geodem.workflow.models import resolve_path
 
-        if shape.surface is None:
+        if shape.surface is not None:
+            key, files = "surface", shape.surface.files()
+        elif shape.raster_mask is not None:
+            key, files = "raster_mask", [("raster", shape.raster_mask.raster)]
+        else:
             return []
-        path = path + ("surface",)
+        path = path + (key,)
         if self.domain.terrain is None:
-            return [(path, "a surface lies under a terrain: allowed with domain: {terrain: "
-                           "...} only (other domains: the shapes below, above, band or polygon)")]
+            return [(path, f"a {key.replace('_', ' ')} lies on a terrain: allowed with domain: "
+                           "{terrain: ...} only (other domains: the shapes below, above, "
+                           "half_space, band, polygon or prism)")]
         if self._terrain_problems():
             return []  # reported on the domain
-        for field, file in shape.surface.files():
+        for field, file in files:
             if not resolve_path(file).exists():
                 return [(path + (field,), f"raster not found: {file} (looked in the working "
                                           f"directory and the geodem source tree)")]

@@ -137,7 +137,24 @@ def test_a_3d_box_is_an_fcc_block():
       "domain": {"terrain": {"raster": "workflows/data/hill.tif"}}},
      "fill: a specimen fill packs a box, a polygon or a disc domain; allowed for a terrain"),
     ({"dim": 3, "domain": {"disc": {"center": [0.3, 0.3, 0.3], "radius": 0.1}}},
-     "domain: the domain is a box, a polygon or a disc (2-D) or a terrain"),
+     "domain: the domain is a box, a polygon or a disc (2-D), a prism (3-D) or a terrain"),
+    ({"domain": {"union": [{"box": {"min": [0, 0], "max": [0.3, 0.3]}}]}},
+     "domain: the domain is a box"),
+    ({"regions": [{"material": "clay", "shape": {"prism": {
+        "polygon": [[0, 0], [1, 0], [0, 1]], "range": [0, 1]}}}]},
+     "regions[0].shape.prism: a prism is 3-D only"),
+    ({"regions": [{"material": "clay", "shape": {"half_space": {
+        "point": [0, 0], "normal": [0, 0]}}}]}, "half_space.normal: the normal is zero"),
+    ({"regions": [{"material": "clay", "shape": {"difference": [{"below": 0.1}]}}]},
+     "difference"),
+    ({"regions": [{"material": "clay", "shape": {"union": [
+        {"below": 0.1}, {"box": {"min": [0, 0, 0], "max": [1, 1, 1]}}]}}]},
+     "regions[0].shape.union[1].box.min: 2 coordinates needed"),
+    ({"regions": [{"material": "clay", "shape": {"union": [
+        {"below": 0.1}, {"terrain": {"raster": "workflows/data/hill.tif"}}]}}]},
+     "a terrain is a domain, not a part of a combination"),
+    ({"regions": [{"material": "clay", "shape": {"raster_mask": {
+        "raster": "workflows/data/hill.tif"}}}]}, "a raster mask lies on a terrain"),
 ])
 def test_bad_scenes_are_refused_with_the_field(model, where):
     with pytest.raises(WorkflowError) as exc:
@@ -571,3 +588,60 @@ def test_a_joint_has_no_interface_stiffness():
     with pytest.raises(WorkflowError, match="interface_stiffness"):
         _cfg(regions=[{"name": "low", "material": "clay", "shape": {"below": 0.1}}],
              interfaces="joint", interface_stiffness=0.5)
+
+
+def test_a_prism_domain_holds_the_box_lattice_inside_its_triangle():
+    """A 3-D prism domain, the triangle x >= 0, z >= 0, x + z <= 0.2 (in the x-z plane)
+    extruded along y over 0-0.1 m: exactly the centres of the box lattice over its bounds that
+    lie in the triangle (edges included)."""
+    tri = {"polygon": [[0.0, 0.0], [0.2, 0.0], [0.0, 0.2]], "axis": "y", "range": [0.0, 0.1]}
+    st = _build(dim=3, domain={"prism": tri}).state
+    box = _build(dim=3, domain={"box": {"min": [0, 0, 0], "max": [0.2, 0.1, 0.2]}}).state
+    inside = box.x[box.x[:, 0] + box.x[:, 2] <= 0.2 + 1e-12]
+    assert st.n == len(inside) > 20
+    assert {tuple(np.round(v, 9)) for v in st.x} == {tuple(np.round(v, 9)) for v in inside}
+
+
+def test_half_spaces_unions_and_differences_select_the_centres_counted_by_hand():
+    """Regions (later overriding earlier): clay in the half-space x + y > 0.45 (point
+    (0.3, 0.15), normal (1, 1)); sand in the union of two boxes less a disc. Each element's
+    material is checked against the predicates evaluated on its centre."""
+    regions = [
+        {"name": "upper", "material": "clay",
+         "shape": {"half_space": {"point": [0.3, 0.15], "normal": [1.0, 1.0]}}},
+        {"name": "blocks", "material": "rock", "shape": {"difference": [
+            {"union": [{"box": {"min": [0.0, 0.0], "max": [0.2, 0.1]}},
+                       {"box": {"min": [0.4, 0.2], "max": [0.6, 0.3]}}]},
+            {"disc": {"center": [0.5, 0.25], "radius": 0.04}}]}}]
+    built = _build(material="sand", regions=regions)
+    x = built.state.x
+    upper = x[:, 0] + x[:, 1] > 0.45
+    boxes = ((x[:, 0] >= 0) & (x[:, 0] <= 0.2) & (x[:, 1] >= 0) & (x[:, 1] <= 0.1)) | \
+        ((x[:, 0] >= 0.4) & (x[:, 0] <= 0.6) & (x[:, 1] >= 0.2) & (x[:, 1] <= 0.3))
+    blocks = boxes & (np.hypot(x[:, 0] - 0.5, x[:, 1] - 0.25) > 0.04)
+    counts = built.info["elements_by_region"]
+    assert counts["blocks"] == int(blocks.sum()) > 50
+    assert counts["upper"] == int((upper & ~blocks).sum()) > 100
+    assert counts["default"] == int((~upper & ~blocks).sum()) > 100
+    assert np.array_equal(np.isclose(built.state.kn, ROCK["kn"]), blocks)
+
+
+def test_a_raster_mask_selects_the_centres_over_its_cells(tmp_path):
+    """A mask raster on the hill's grid (10 m cells), 1 on the cells west of local x = 300 m
+    and 0 east of them: read bilinearly between cell centres, it is 0.5 on that cell edge, so
+    the region (above 0.5, the default) is the centres whose section position lies west of
+    300 m (the line runs west-east from local x = 0)."""
+    import rasterio
+
+    mask = tmp_path / "mask.tif"
+    with rasterio.open(HILL) as src:
+        prof = src.profile
+        west = (np.arange(src.width) + 0.5) * src.res[0] < 300  # cell centres, local x
+        grid = np.repeat(west[None, :].astype("float32"), src.height, axis=0)
+    with rasterio.open(mask, "w", **prof) as dst:
+        dst.write(grid.astype(prof["dtype"]), 1)
+    built = _terrain_scene(10.0, [{"name": "west", "material": "clay",
+                                   "shape": {"raster_mask": {"raster": str(mask)}}}])
+    x = built.state.x
+    assert built.info["elements_by_region"]["west"] == int((x[:, 0] < 300).sum()) > 20
+    assert np.array_equal(np.isclose(built.state.kn, CLAY["kn"]), x[:, 0] < 300)
