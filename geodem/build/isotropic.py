@@ -68,6 +68,10 @@ PHI_START = 0.3
 #: specimens always were
 TILE_ABOVE = 20_000
 TILE_ELEMENTS = 8_000
+#: the most elements a box jammed whole on request (``tile=False``) may hold: a 3-D box of
+#: 42,282 elements took about 18 minutes to build on one core (2026-12-06), and the cost grows
+#: ~N^2.6 (docs/performance.md, "A tiled lab specimen")
+WHOLE_JAM_MAX = 60_000
 #: FIRE iterations of one growth step of a periodic cell (:func:`jam`)
 GROWTH_CAP = 30_000
 PHI_BULK = 0.635  # random close packing of the default size spread (measured: 0.639)
@@ -489,6 +493,12 @@ def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=None
     if n is None:
         # a wall leaves a looser layer: about WALL_DEFICIT d_mean of each face counts as empty
         n = round(phi * float(np.prod(size - 2.0 * WALL_DEFICIT * d_mean)) / vmean)
+    if tile is False and n > WHOLE_JAM_MAX:
+        raise ValueError(f"a random packing of {n:,} elements jammed whole (not tiled: a disc "
+                         f"or another lab specimen whose faces must be whole); allowed: up to "
+                         f"{WHOLE_JAM_MAX:,} (a box of 42,282 elements took about 18 minutes "
+                         f"to build on one core, and the cost grows ~N^2.6): make d_mean larger "
+                         f"or the specimen smaller")
     if tile or (tile is None and n > TILE_ABOVE):
         cells = tile_counts(size, vmean, phi)
         n_cell = round(phi * float(np.prod(size / cells)) / vmean) if whole else \

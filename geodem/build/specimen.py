@@ -315,13 +315,15 @@ def packing_recipe(element, dim: int) -> str:
 
 
 def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material=None, dim=3,
-                  seed=0, gap=None, backend=None, tol=1e-3, element=None):
+                  seed=0, gap=None, backend=None, tol=1e-3, element=None, tile=None):
     """Pack, cut and cement a specimen. ``material``: rock properties (``E, nu, Tu, Cu, mu_i,
     rho``) converted by ``macro_to_micro`` at ``d_mean``; or, with ``element`` (size-free
     element parameters, :func:`geodem.materials.per_size` keys, e.g. calibrated ones), only
     ``rho`` is read from ``material``. Returns ``(state, report)``; the report holds the
     :func:`cement` keys plus ``packing`` (deposition/compaction summaries) and ``volume``
-    (shape volume, area in 2-D) and ``shape_packing_fraction`` (element volume / shape volume)."""
+    (shape volume, area in 2-D) and ``shape_packing_fraction`` (element volume / shape volume).
+    ``tile``: an isotropic packing's tiling (:func:`geodem.build.isotropic.isotropic_packing`;
+    None: above ``TILE_ABOVE`` elements, False: never)."""
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
     mat = dict(DEFAULT_MATERIAL if material is None else material)
@@ -330,7 +332,7 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
     if recipe == "isotropic":
         return isotropic_specimen(shp, d_mean, distri_rate,
                                   specimen_params(mat, element, d_mean), mat["rho"], seed=seed,
-                                  backend=backend, tol=tol)
+                                  backend=backend, tol=tol, tile=tile)
     blo, bhi = shp.bounds
     ext = bhi - blo
     margin = 1.5 * d_mean

@@ -200,8 +200,12 @@ def disc_with_platens(dim, diameter, d_mean, material: SpecimenMaterial, *, thic
     from geodem.core import groups
 
     size = (float(diameter),) if dim == 2 else (float(diameter), float(thickness))
+    # never tiled: a disc cut from repeated periodic cells splits early (0.55-5.62 MPa against
+    # 8.3 jammed whole: docs/performance.md, "A tiled lab specimen"), so a large disc is jammed
+    # whole, up to geodem.build.isotropic.WHOLE_JAM_MAX elements in its box
     st, rep = make_specimen("disc", size, d_mean, distri_rate, material.material, dim, seed,
-                            element=material.element, gap=_bond_gap(material, d_mean))
+                            element=material.element, gap=_bond_gap(material, d_mean),
+                            tile=False)
     st, removed = prune_loose(st, 2, n_across=float(diameter) / d_mean)
     if st.n < 10:
         raise ValueError(f"only {st.n} elements of the disc have 2 bonds or more: make the "

@@ -163,3 +163,26 @@ def test_a_cut_face_specimen_is_measured_over_its_box(tmp_path, monkeypatch):
     st = cut.state
     over = (st.x + st.r[:, None]).max(axis=0) - (st.x - st.r[:, None]).min(axis=0)
     assert over[0] * over[1] > 1.05 * cut_area  # what the elements' extent would have read
+
+
+def test_a_brazilian_disc_is_jammed_whole_where_a_box_would_be_tiled(monkeypatch):
+    """A disc cut from repeated cells splits early, so the disc builder never tiles: with
+    tiling forced for every box (TILE_ABOVE = 0), a small 3-D disc still comes from a box
+    jammed whole (no cells in its packing report, flat faces), the same packing bit for bit
+    as without the forcing."""
+    from geodem.cases.brazilian import disc_with_platens
+    from geodem.workflow.material import SpecimenMaterial
+
+    mat = SpecimenMaterial(2600.0, macro={"E": 20e9, "nu": 0.15, "Tu": 5e6, "Cu": 60e6,
+                                          "mu_i": 0.6, "rho": 2600.0})
+    plain, _, _ = disc_with_platens(3, 0.08, 0.01, mat, thickness=0.03)
+    monkeypatch.setattr(isotropic, "TILE_ABOVE", 0)
+    forced, rep, _ = disc_with_platens(3, 0.08, 0.01, mat, thickness=0.03)
+    assert "tiles" not in rep["packing"] and rep["packing"]["face_contacts"] > 0
+    assert np.array_equal(forced.x, plain.x)
+
+
+def test_a_whole_jam_beyond_its_limit_is_refused_before_any_work():
+    with pytest.raises(ValueError, match=r"113,\d{3} elements jammed whole.*allowed: up to "
+                                         r"60,000.*make d_mean larger"):
+        isotropic.isotropic_packing([1.0, 1.0, 0.1], 0.01, tile=False)
