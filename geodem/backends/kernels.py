@@ -2,8 +2,8 @@
 the CPU (numba ``prange``) or the GPU (CUDA; the CUDA simulator runs the same code in CI without
 a GPU).
 
-``DIM``, ``ROT``, ``DAMP`` and ``KROW`` are compile-time constants, so the 2-D kernels carry no third
-component and an option that is off costs nothing. The contact law (``geodem.core.law``) is
+``DIM``, ``ROT``, ``DAMP`` and ``KROW`` are compile-time constants, so the 2-D kernels carry no
+third component and an option that is off costs nothing. The contact law (``geodem.core.law``) is
 compiled into the same code, force-inlined in the row loop.
 
 The CPU kernels are cached on disk: the law's and the bodies' source are written into one
@@ -29,7 +29,8 @@ from geodem.core import law
 
 LAW_NAMES = law.HELPERS + ("contact", "rolling", "contact_energy")
 BODY_NAMES = ("dof_free", "dof_step", "translate_dofs", "own_position", "branch",
-              "own_params", "row_stiffness", "row_contact", "contact_point", "entry_contact", "dashpot", "roll",
+              "own_params", "row_stiffness", "row_contact", "contact_point", "entry_contact",
+              "dashpot", "roll",
               "finish_dofs", "move_body", "force_body", "energy_body", "owner_body",
               "take_post", "finish_body", "mirror_body", "prefetch_partners", "prefetch_rows")
 PASSES = ("move", "force", "energy", "move_idx", "force_idx", "force_owner", "finish",
@@ -159,8 +160,8 @@ def make_kernels(dim: int, target: str, rotation: bool = False, damping: bool = 
     q_bs, q_f, w_ext, g0, g1, g2, dt, code_t, code_s, hertz, *EXTRA_FORCE)``,
     ``energy(x, props, nbr, cstate, fs, hertz, e_el, mr, rot_props, krate)`` with ``EXTRA_MOVE =
     (w, wa, dth, rfree, inertia, fdash)`` and ``EXTRA_FORCE = EXTRA_MOVE + (mr, rot_props,
-    krate)``: the
-    arrays of the options (placeholders for an option that is off: :func:`placeholders`).
+    krate)``: the arrays of the options (placeholders for an option that is off:
+    :func:`placeholders`).
 
     The CPU namespace also has ``steps(nsteps, code_t0, code_s0, ...)``: ``nsteps`` whole steps
     (move, owner pass, finish) in one call (``geodem.backends.step_bodies.cpu_steps``).

@@ -145,7 +145,7 @@ class NumpyBackend(HostBackend):
         qf = np.where(valid, qf, 0.0)
 
         if s.rotation:
-            torque, qr = self._rolling(valid, j, n, fn, new, intact, bf)
+            torque, qr = self._rolling(valid, j, n, fn, new, intact, bf, kf)
             qf = qf + qr
         s.fs[:] = np.where(valid[..., None], new, s.fs)
         s.cstate[:] = np.where(tens, code_t, np.where(shr, code_s, s.cstate))
@@ -193,16 +193,17 @@ class NumpyBackend(HostBackend):
         fd = np.where((cstate_new != BONDED) & (fd > -fn), -fn, fd)
         return np.where(on, fd, 0.0)
 
-    def _rolling(self, valid, j, n, fn, shear, bonded, bf):
+    def _rolling(self, valid, j, n, fn, shear, bonded, bf, kf):
         """Torques (N, nr) of the shear forces and the rolling moments, and the rolling heat
         (N, W); updates ``mr`` (geodem.core.law.rolling, whole-matrix form). ``bonded``: the
         contacts bonded after this step's law (they also hold ``bond_moment R* F_b``, ``bf`` =
-        F_b). Rolling spring ``K_r = beta Ks R*^2``, ``beta`` the smaller rolling_stiffness."""
+        F_b). Rolling spring ``K_r = beta Ks R*^2``, ``beta`` the smaller rolling_stiffness,
+        ``Ks`` with the contacts' stiffness factor ``kf``."""
         s = self.s
         ri = s.r[:, None]
         rs = series_array(ri, s.r[j])
         beta = np.minimum(s.rolling_stiffness[:, None], s.rolling_stiffness[j])
-        kr = beta * (series_array(s.ks[:, None], s.ks[j]) * _stiffness_factor(s)) * rs * rs
+        kr = beta * (series_array(s.ks[:, None], s.ks[j]) * kf) * rs * rs
         lim = np.minimum(s.mu_r[:, None], s.mu_r[j]) * rs * np.maximum(-fn, 0.0)
         mb = np.minimum(s.bond_moment[:, None], s.bond_moment[j])
         lim = lim + np.where(bonded & (mb > 0.0), mb * rs * np.where(mb > 0.0, bf, 0.0), 0.0)

@@ -129,9 +129,11 @@ def validate_state(state) -> None:
                              f"finite and {rng}")
     if not ((state.brate >= 0) & np.isfinite(state.brate)).all():
         raise ValueError("bond_rate must be finite and >= 0")
-    if state.row_stiffness and not ((state.krate > 0) & (state.krate <= 1)).all():
-        i, k = (int(a[0]) for a in np.nonzero(~((state.krate > 0) & (state.krate <= 1))))
-        raise ValueError(f"contact stiffness factor krate[{i}, {k}] is {float(state.krate[i, k])!r}; "
+    bad = np.argwhere(~((state.krate > 0) & (state.krate <= 1))) if state.row_stiffness else ()
+    if len(bad):
+        i, k = (int(v) for v in bad[0])
+        raise ValueError(f"contact stiffness factor krate[{i}, {k}] is "
+                         f"{float(state.krate[i, k])!r}; "
                          "allowed: 0 < krate <= 1 (a contact no stiffer than its elements)")
     rows, cols = np.nonzero(state.nbr >= 0)
     if rows.size:

@@ -101,8 +101,9 @@ def contact(dx, dy, dz, rx, ry, rz, sx, sy, sz,
 
     Parameters: branch vector ``d = x_j - x_i`` [m]; relative displacement of the step
     ``dx_j - dx_i`` [m]; stored shear spring ``Fs`` [N]; element parameters of i and j; bond rate;
-    contact stiffness factor ``kf`` (0 < kf <= 1); contact state ``cs`` (1 bonded, anything else unbonded); the state codes to store for a
-    tensile / shear break in this step; ``hertz`` flag (0/1).
+    contact stiffness factor ``kf`` (0 < kf <= 1); contact state ``cs`` (1 bonded, anything
+    else unbonded); the state codes to store for a tensile / shear break in this step;
+    ``hertz`` flag (0/1).
 
     Returns ``(Fn, nx, ny, nz, sx, sy, sz, cs_new, qn, qs, qf)``: normal force (tension +) along
     the unit normal ``n = d/|d|``, the new shear spring, the new state and the step's heats.
