@@ -129,7 +129,8 @@ import math
 import numbers
 
 import numpy as np
-from numba import njit
+import numba
+from numba import njit, prange
 
 from geodem.fields import CoupledField, check_substep, register_field, whole_number
 
@@ -152,6 +153,11 @@ DEGENERATE_REL = 1e-9  # x d^dim: a cell of smaller area/volume is flat (refused
 #: pressures still cancel on every element; counted as inside out, it rebuilt the network at
 #: nearly every coupling (17 rebuilds in 20 couplings at 10^4 elements)
 INVERTED_REL = 1e-3
+# The pore kernels are compiled without fastmath: the threaded passes and the serial ones then
+# give the same bits (fastmath lets the compiler reorder a sum differently in each)
+#: a network of fewer cells runs its passes on one thread (measured on 2 cores: no gain at
+#: 55,000 cells, 1.1-1.5 x at 580,000); the results are the same bits either way
+PARALLEL_MIN = 65536
 
 
 class PoreFluidError(ValueError):
@@ -163,39 +169,57 @@ def _err(msg: str) -> PoreFluidError:
 
 
 # ============================================================================ kernels
-@njit(cache=True, fastmath=True)
+@njit(cache=True)
+def _geom2_cell(x, r, cells, t, ap, floor, V, cen, tol, c):
+    """Volume ``V[c]`` [m^3] and vertex centroid ``cen[c]`` of 2-D cell ``c``; returns 1 when
+    its area is below -tol (inside out), else 0."""
+    bad = 0
+    i0 = cells[c, 0]
+    i1 = cells[c, 1]
+    i2 = cells[c, 2]
+    ax, ay = x[i0, 0], x[i0, 1]
+    bx, by = x[i1, 0], x[i1, 1]
+    cx, cy = x[i2, 0], x[i2, 1]
+    area = 0.5 * ((bx - ax) * (cy - ay) - (by - ay) * (cx - ax))
+    if area < -tol:
+        bad = 1
+    # angles at the three vertices (the third from the angle sum pi)
+    ux, uy, vx, vy = bx - ax, by - ay, cx - ax, cy - ay
+    th0 = math.atan2(abs(ux * vy - uy * vx), ux * vx + uy * vy)
+    ux, uy, vx, vy = cx - bx, cy - by, ax - bx, ay - by
+    th1 = math.atan2(abs(ux * vy - uy * vx), ux * vx + uy * vy)
+    th2 = math.pi - th0 - th1
+    if th2 < 0.0:
+        th2 = 0.0
+    r0, r1, r2 = r[i0], r[i1], r[i2]
+    solid = 0.5 * (th0 * r0 * r0 + th1 * r1 * r1 + th2 * r2 * r2)
+    film = th0 * r0 + th1 * r1 + th2 * r2
+    a = abs(area)
+    free = a - solid
+    if free < floor * a:
+        free = floor * a
+    V[c] = t * (free + ap * film)
+    cen[c, 0] = (ax + bx + cx) / 3.0
+    cen[c, 1] = (ay + by + cy) / 3.0
+    return bad
+
+
+@njit(cache=True)
 def _geom2(x, r, cells, t, ap, floor, V, cen, tol):
     """2-D pore volumes ``V`` [m^3] and vertex centroids ``cen``; returns the number of cells
     with area < -tol (inside out)."""
     bad = 0
     for c in range(cells.shape[0]):
-        i0 = cells[c, 0]
-        i1 = cells[c, 1]
-        i2 = cells[c, 2]
-        ax, ay = x[i0, 0], x[i0, 1]
-        bx, by = x[i1, 0], x[i1, 1]
-        cx, cy = x[i2, 0], x[i2, 1]
-        area = 0.5 * ((bx - ax) * (cy - ay) - (by - ay) * (cx - ax))
-        if area < -tol:
-            bad += 1
-        # angles at the three vertices (the third from the angle sum pi)
-        ux, uy, vx, vy = bx - ax, by - ay, cx - ax, cy - ay
-        th0 = math.atan2(abs(ux * vy - uy * vx), ux * vx + uy * vy)
-        ux, uy, vx, vy = cx - bx, cy - by, ax - bx, ay - by
-        th1 = math.atan2(abs(ux * vy - uy * vx), ux * vx + uy * vy)
-        th2 = math.pi - th0 - th1
-        if th2 < 0.0:
-            th2 = 0.0
-        r0, r1, r2 = r[i0], r[i1], r[i2]
-        solid = 0.5 * (th0 * r0 * r0 + th1 * r1 * r1 + th2 * r2 * r2)
-        film = th0 * r0 + th1 * r1 + th2 * r2
-        a = abs(area)
-        free = a - solid
-        if free < floor * a:
-            free = floor * a
-        V[c] = t * (free + ap * film)
-        cen[c, 0] = (ax + bx + cx) / 3.0
-        cen[c, 1] = (ay + by + cy) / 3.0
+        bad += _geom2_cell(x, r, cells, t, ap, floor, V, cen, tol, c)
+    return bad
+
+
+@njit(cache=True, parallel=True)
+def _geom2_par(x, r, cells, t, ap, floor, V, cen, tol):
+    """:func:`_geom2` over the threads (each cell on its own: the same numbers)."""
+    bad = 0
+    for c in prange(cells.shape[0]):
+        bad += _geom2_cell(x, r, cells, t, ap, floor, V, cen, tol, c)
     return bad
 
 
@@ -214,88 +238,130 @@ def _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz):
     return om
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True)
+def _geom3_cell(x, r, cells, ap, floor, V, cen, tol, c):
+    """Volume and centroid of tetrahedron ``c``; returns 1 when its volume is below -tol
+    (inside out), else 0."""
+    bad = 0
+    i0 = cells[c, 0]
+    i1 = cells[c, 1]
+    i2 = cells[c, 2]
+    i3 = cells[c, 3]
+    e1x, e1y, e1z = x[i1, 0] - x[i0, 0], x[i1, 1] - x[i0, 1], x[i1, 2] - x[i0, 2]
+    e2x, e2y, e2z = x[i2, 0] - x[i0, 0], x[i2, 1] - x[i0, 1], x[i2, 2] - x[i0, 2]
+    e3x, e3y, e3z = x[i3, 0] - x[i0, 0], x[i3, 1] - x[i0, 1], x[i3, 2] - x[i0, 2]
+    vol6 = e1x * (e2y * e3z - e2z * e3y) - e1y * (e2x * e3z - e2z * e3x) + \
+        e1z * (e2x * e3y - e2y * e3x)
+    if vol6 < -6.0 * tol:
+        bad = 1
+    solid = 0.0
+    film = 0.0
+    for k in range(4):
+        p = cells[c, k]
+        q1 = cells[c, (k + 1) % 4]
+        q2 = cells[c, (k + 2) % 4]
+        q3 = cells[c, (k + 3) % 4]
+        om = _solid_angle(x[q1, 0] - x[p, 0], x[q1, 1] - x[p, 1], x[q1, 2] - x[p, 2],
+                          x[q2, 0] - x[p, 0], x[q2, 1] - x[p, 1], x[q2, 2] - x[p, 2],
+                          x[q3, 0] - x[p, 0], x[q3, 1] - x[p, 1], x[q3, 2] - x[p, 2])
+        rr = r[p]
+        solid += om * rr * rr * rr / 3.0
+        film += om * rr * rr
+    vt = abs(vol6) / 6.0
+    free = vt - solid
+    if free < floor * vt:
+        free = floor * vt
+    V[c] = free + ap * film
+    for d in range(3):
+        cen[c, d] = 0.25 * (x[i0, d] + x[i1, d] + x[i2, d] + x[i3, d])
+    return bad
+
+
+@njit(cache=True)
 def _geom3(x, r, cells, ap, floor, V, cen, tol):
     """3-D pore volumes and centroids; returns the number of tetrahedra with volume < -tol
     (inside out)."""
     bad = 0
     for c in range(cells.shape[0]):
-        vol6 = 0.0
-        i0 = cells[c, 0]
-        i1 = cells[c, 1]
-        i2 = cells[c, 2]
-        i3 = cells[c, 3]
-        e1x, e1y, e1z = x[i1, 0] - x[i0, 0], x[i1, 1] - x[i0, 1], x[i1, 2] - x[i0, 2]
-        e2x, e2y, e2z = x[i2, 0] - x[i0, 0], x[i2, 1] - x[i0, 1], x[i2, 2] - x[i0, 2]
-        e3x, e3y, e3z = x[i3, 0] - x[i0, 0], x[i3, 1] - x[i0, 1], x[i3, 2] - x[i0, 2]
-        vol6 = e1x * (e2y * e3z - e2z * e3y) - e1y * (e2x * e3z - e2z * e3x) + \
-            e1z * (e2x * e3y - e2y * e3x)
-        if vol6 < -6.0 * tol:
-            bad += 1
-        solid = 0.0
-        film = 0.0
-        for k in range(4):
-            p = cells[c, k]
-            q1 = cells[c, (k + 1) % 4]
-            q2 = cells[c, (k + 2) % 4]
-            q3 = cells[c, (k + 3) % 4]
-            om = _solid_angle(x[q1, 0] - x[p, 0], x[q1, 1] - x[p, 1], x[q1, 2] - x[p, 2],
-                              x[q2, 0] - x[p, 0], x[q2, 1] - x[p, 1], x[q2, 2] - x[p, 2],
-                              x[q3, 0] - x[p, 0], x[q3, 1] - x[p, 1], x[q3, 2] - x[p, 2])
-            rr = r[p]
-            solid += om * rr * rr * rr / 3.0
-            film += om * rr * rr
-        vt = abs(vol6) / 6.0
-        free = vt - solid
-        if free < floor * vt:
-            free = floor * vt
-        V[c] = free + ap * film
-        for d in range(3):
-            cen[c, d] = 0.25 * (x[i0, d] + x[i1, d] + x[i2, d] + x[i3, d])
+        bad += _geom3_cell(x, r, cells, ap, floor, V, cen, tol, c)
     return bad
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, parallel=True)
+def _geom3_par(x, r, cells, ap, floor, V, cen, tol):
+    """:func:`_geom3` over the threads (each cell on its own: the same numbers)."""
+    bad = 0
+    for c in prange(cells.shape[0]):
+        bad += _geom3_cell(x, r, cells, ap, floor, V, cen, tol, c)
+    return bad
+
+
+@njit(cache=True)
+def _distance(p, a, b):
+    """``|p[b] - p[a]|`` [m]."""
+    l2 = 0.0
+    for d in range(p.shape[1]):
+        dd = p[b, d] - p[a, d]
+        l2 += dd * dd
+    return math.sqrt(l2)
+
+
+@njit(cache=True)
+def _throat_conductance(x, r, g0, tp, te, slots, cstate, cen, kt, ap, bond_factor, t):
+    """Conductance [kg/(Pa s)] of throat ``t``: the mean over its pairs (module docstring)."""
+    ne = te.shape[1]
+    lp = _distance(cen, tp[t, 0], tp[t, 1])
+    acc = 0.0
+    rsum = 0.0
+    for e in range(ne):
+        i = te[t, e, 0]
+        j = te[t, e, 1]
+        op = _distance(x, i, j) - r[i] - r[j] - g0[t, e] + ap
+        if op < 0.0:
+            op = 0.0
+        s = slots[t, e]
+        if s >= 0:
+            if cstate[i, s] == 1:
+                op /= bond_factor
+        acc += op
+        rsum += r[i] + r[j]
+    rsum /= ne
+    if lp < L_PATH_MIN * rsum:
+        lp = L_PATH_MIN * rsum
+    return kt * (acc / ne) / lp
+
+
+@njit(cache=True)
 def _conductance(x, r, g0, tp, te, slots, cstate, cen, kt, ap, bond_factor, C, csum):
     """Throat conductances ``C`` [kg/(Pa s)] (mean over the throat's pairs) and their sums per
     pore ``csum``; ``g0`` the reference gap of each pair (subtracted when positive)."""
-    dim = x.shape[1]
-    ne = te.shape[1]
     for a in range(csum.shape[0]):
         csum[a] = 0.0
     for t in range(tp.shape[0]):
-        a = tp[t, 0]
-        b = tp[t, 1]
-        lp2 = 0.0
-        for d in range(dim):
-            dd = cen[b, d] - cen[a, d]
-            lp2 += dd * dd
-        lp = math.sqrt(lp2)
-        acc = 0.0
-        rsum = 0.0
-        for e in range(ne):
-            i = te[t, e, 0]
-            j = te[t, e, 1]
-            l2 = 0.0
-            for d in range(dim):
-                dd = x[j, d] - x[i, d]
-                l2 += dd * dd
-            op = math.sqrt(l2) - r[i] - r[j] - g0[t, e] + ap
-            if op < 0.0:
-                op = 0.0
-            s = slots[t, e]
-            if s >= 0:
-                if cstate[i, s] == 1:
-                    op /= bond_factor
-            acc += op
-            rsum += r[i] + r[j]
-        rsum /= ne
-        if lp < L_PATH_MIN * rsum:
-            lp = L_PATH_MIN * rsum
-        c = kt * (acc / ne) / lp
+        c = _throat_conductance(x, r, g0, tp, te, slots, cstate, cen, kt, ap, bond_factor, t)
         C[t] = c
-        csum[a] += c
-        csum[b] += c
+        csum[tp[t, 0]] += c
+        csum[tp[t, 1]] += c
+
+
+@njit(cache=True, parallel=True)
+def _conductance_par(x, r, g0, tp, te, slots, cstate, cen, kt, ap, bond_factor, C):
+    """The conductances of :func:`_conductance` over the threads (their sums per pore:
+    :func:`_pore_sums`)."""
+    for t in prange(tp.shape[0]):
+        C[t] = _throat_conductance(x, r, g0, tp, te, slots, cstate, cen, kt, ap, bond_factor, t)
+
+
+@njit(cache=True, parallel=True)
+def _pore_sums(v, ptr, items, out):
+    """``out[a]`` = the sum of ``v[t]`` over the throats ``t`` of pore ``a`` in ascending ``t``
+    (``items`` = 2 t + side: :func:`_owner_index` of the throats' pores), the order of the
+    serial scatter: the same bits at any thread count."""
+    for a in prange(out.shape[0]):
+        acc = 0.0
+        for k in range(ptr[a], ptr[a + 1]):
+            acc += v[items[k] >> 1]
+        out[a] = acc
 
 
 @njit(cache=True)
@@ -344,11 +410,7 @@ def _hold(M, V, held, pset, booked, kf, cf):
 def _cscale(x, r, a, b):
     """Where the contact point of pair (a, b), the middle of their gap, lies along the branch
     from a to b (0 at a, 1 at b)."""
-    l2 = 0.0
-    for k in range(x.shape[1]):
-        dd = x[b, k] - x[a, k]
-        l2 += dd * dd
-    L = math.sqrt(l2)
+    L = _distance(x, a, b)
     return 0.5 * (L + r[a] - r[b]) / L if L > 0.0 else 0.5
 
 
@@ -386,47 +448,129 @@ _FACES3 = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], np.int64)
 
 
 @njit(cache=True)
-def _forces3(x, r, cells, P, faces, F):
-    """3-D pressure forces: each outward face (a, b, c) split into the quads
-    ``(x_a, q_ab, m, q_ca)``; ``F_a += P * vector area``."""
+def _cpoint(x, r, a, b):
+    """Contact point ``q_ab`` of pair (a, b): the middle of their gap on the branch [m]."""
+    s = _cscale(x, r, a, b)
+    return (x[a, 0] + s * (x[b, 0] - x[a, 0]), x[a, 1] + s * (x[b, 1] - x[a, 1]),
+            x[a, 2] + s * (x[b, 2] - x[a, 2]))
+
+
+@njit(cache=True)
+def _quad(p, x, v, m, w0, w1, w2):
+    """``P/2 (m - x_v) x w``: the force of vertex v's quad (x_v, q_ab, m, q_ca), ``w = q_ca -
+    q_ab`` [N]."""
+    ux = m[0] - x[v, 0]
+    uy = m[1] - x[v, 1]
+    uz = m[2] - x[v, 2]
+    return (0.5 * p * (uy * w2 - uz * w1), 0.5 * p * (uz * w0 - ux * w2),
+            0.5 * p * (ux * w1 - uy * w0))
+
+
+@njit(cache=True)
+def _face_forces(p, x, a, b, c, qab, qbc, qca):
+    """Forces on a, b, c of the outward face (a, b, c) split into their three quads."""
+    m = ((qab[0] + qbc[0] + qca[0]) / 3.0, (qab[1] + qbc[1] + qca[1]) / 3.0,
+         (qab[2] + qbc[2] + qca[2]) / 3.0)
+    fa = _quad(p, x, a, m, qca[0] - qab[0], qca[1] - qab[1], qca[2] - qab[2])
+    fb = _quad(p, x, b, m, qab[0] - qbc[0], qab[1] - qbc[1], qab[2] - qbc[2])
+    fc = _quad(p, x, c, m, qbc[0] - qca[0], qbc[1] - qca[1], qbc[2] - qca[2])
+    return fa, fb, fc
+
+
+@njit(cache=True)
+def _cell_forces3(x, r, cells, P, c, out):
+    """Forces [N] of tetrahedron ``c``'s pressure on its four vertices into ``out[4 c + k]``:
+    each outward face (a, b, c) split into the quads ``(x_a, q_ab, m, q_ca)``, ``F = P *
+    vector area``; a vertex's three quads summed in face order. The six contact points are
+    computed once, so the two faces on an edge share its point exactly."""
+    p = P[c]
+    i0 = cells[c, 0]
+    i1 = cells[c, 1]
+    i2 = cells[c, 2]
+    i3 = cells[c, 3]
+    q01 = _cpoint(x, r, i0, i1)
+    q02 = _cpoint(x, r, i0, i2)
+    q03 = _cpoint(x, r, i0, i3)
+    q12 = _cpoint(x, r, i1, i2)
+    q13 = _cpoint(x, r, i1, i3)
+    q23 = _cpoint(x, r, i2, i3)
+    # the outward faces (1, 2, 3), (0, 3, 2), (0, 1, 3), (0, 2, 1) of a right-handed cell
+    f1a, f2a, f3a = _face_forces(p, x, i1, i2, i3, q12, q23, q13)
+    f0b, f3b, f2b = _face_forces(p, x, i0, i3, i2, q03, q23, q02)
+    f0c, f1c, f3c = _face_forces(p, x, i0, i1, i3, q01, q13, q03)
+    f0d, f2d, f1d = _face_forces(p, x, i0, i2, i1, q02, q12, q01)
+    o = 4 * c
+    for d in range(3):
+        out[o, d] = f0b[d] + f0c[d] + f0d[d]
+        out[o + 1, d] = f1a[d] + f1c[d] + f1d[d]
+        out[o + 2, d] = f2a[d] + f2b[d] + f2d[d]
+        out[o + 3, d] = f3a[d] + f3b[d] + f3c[d]
+
+
+@njit(cache=True)
+def _forces3(x, r, cells, P, F, buf):
+    """3-D pressure forces (:func:`_cell_forces3`), each element's sum over its cells in
+    ascending order (``buf``: (4 P, 3) scratch)."""
     for i in range(F.shape[0]):
         F[i, 0] = 0.0
         F[i, 1] = 0.0
         F[i, 2] = 0.0
-    q = np.empty((3, 3))
-    m = np.empty(3)
     for c in range(cells.shape[0]):
-        p = P[c]
-        if p == 0.0:
+        if P[c] == 0.0:
             continue
-        for f in range(4):
-            v0 = cells[c, faces[f, 0]]
-            v1 = cells[c, faces[f, 1]]
-            v2 = cells[c, faces[f, 2]]
-            s01 = _cscale(x, r, v0, v1)  # each contact point's scale once, not per component
-            s12 = _cscale(x, r, v1, v2)
-            s20 = _cscale(x, r, v2, v0)
-            for d in range(3):
-                q[0, d] = x[v0, d] + s01 * (x[v1, d] - x[v0, d])  # q_01
-                q[1, d] = x[v1, d] + s12 * (x[v2, d] - x[v1, d])  # q_12
-                q[2, d] = x[v2, d] + s20 * (x[v0, d] - x[v2, d])  # q_20
-                m[d] = (q[0, d] + q[1, d] + q[2, d]) / 3.0
-            for k in range(3):
-                if k == 0:
-                    a, qin, qout = v0, 2, 0  # quad (x_a, q_ab, m, q_ca): q_ab = q_01, q_ca = q_20
-                elif k == 1:
-                    a, qin, qout = v1, 0, 1
-                else:
-                    a, qin, qout = v2, 1, 2
-                ux = m[0] - x[a, 0]
-                uy = m[1] - x[a, 1]
-                uz = m[2] - x[a, 2]
-                wx = q[qin, 0] - q[qout, 0]
-                wy = q[qin, 1] - q[qout, 1]
-                wz = q[qin, 2] - q[qout, 2]
-                F[a, 0] += 0.5 * p * (uy * wz - uz * wy)
-                F[a, 1] += 0.5 * p * (uz * wx - ux * wz)
-                F[a, 2] += 0.5 * p * (ux * wy - uy * wx)
+        _cell_forces3(x, r, cells, P, c, buf)
+        for k in range(4):
+            a = cells[c, k]
+            F[a, 0] += buf[4 * c + k, 0]
+            F[a, 1] += buf[4 * c + k, 1]
+            F[a, 2] += buf[4 * c + k, 2]
+
+
+@njit(cache=True, parallel=True)
+def _forces3_par(x, r, cells, P, F, buf, ptr, items):
+    """:func:`_forces3` over the threads: every cell's vertex forces on their own (``buf``
+    (4 P, 3)), then every element's sum over its cells in ascending order (``ptr``, ``items``:
+    :func:`_owner_index` of ``cells``), the serial order: the same bits at any thread count."""
+    for c in prange(cells.shape[0]):
+        if P[c] == 0.0:
+            for k in range(4):
+                buf[4 * c + k, 0] = 0.0
+                buf[4 * c + k, 1] = 0.0
+                buf[4 * c + k, 2] = 0.0
+        else:
+            _cell_forces3(x, r, cells, P, c, buf)
+    for i in prange(F.shape[0]):
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        for k in range(ptr[i], ptr[i + 1]):
+            o = items[k]
+            f0 += buf[o, 0]
+            f1 += buf[o, 1]
+            f2 += buf[o, 2]
+        F[i, 0] = f0
+        F[i, 1] = f1
+        F[i, 2] = f2
+
+
+@njit(cache=True)
+def _apply_delta(F, f_prev, fload, a, free, m):
+    """``fload += F - f_prev``; free degrees of freedom's ``a`` by the same delta / m."""
+    for i in range(F.shape[0]):
+        for d in range(F.shape[1]):
+            dl = F[i, d] - f_prev[i, d]
+            fload[i, d] += dl
+            a[i, d] += dl / m[i] if free[i, d] != 0.0 else 0.0
+
+
+def _owner_index(owner, n):
+    """CSR of the entries of ``owner`` (flat, values in [0, n)) by value, each value's entries in
+    ascending position: ``(ptr (n + 1,), items)``."""
+    owner = np.ascontiguousarray(owner, dtype=np.int64).ravel()
+    items = np.argsort(owner, kind="stable").astype(np.int64)
+    ptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(owner, minlength=n), out=ptr[1:])
+    return ptr, items
 
 
 @njit(cache=True)
@@ -869,17 +1013,21 @@ class PoreField(CoupledField):
         return np.sort(cells, axis=1)
 
     def _match(self, old, new):
-        """``(old_of_new, new_of_old)``: index of the cell with the same vertex set (-1)."""
+        """``(old_of_new, new_of_old)``: index of the cell with the same vertex set (-1).
+        Within one triangulation the vertex sets are unique, so after a lexicographic sort of
+        both sets' rows an equal neighbour is the other set's cell (stable: old first)."""
         ko, kn = self._keys(old), self._keys(new)
         allk = np.concatenate([ko, kn])
-        _, inv = np.unique(allk, axis=0, return_inverse=True)
-        inv = inv.ravel()
-        io, inn = inv[:len(ko)], inv[len(ko):]
-        first_old = np.full(inv.max() + 1, -1, np.int64)
-        first_old[io] = np.arange(len(ko))
-        first_new = np.full(inv.max() + 1, -1, np.int64)
-        first_new[inn] = np.arange(len(kn))
-        return first_old[inn], first_new[io]
+        order = np.lexsort(allk.T[::-1])
+        srt = allk[order]
+        same = np.flatnonzero(np.all(srt[1:] == srt[:-1], axis=1))
+        a, b = order[same], order[same + 1] - len(ko)
+        ok = (a < len(ko)) & (b >= 0)
+        old_of_new = np.full(len(kn), -1, np.int64)
+        new_of_old = np.full(len(ko), -1, np.int64)
+        old_of_new[b[ok]] = a[ok]
+        new_of_old[a[ok]] = b[ok]
+        return old_of_new, new_of_old
 
     def _where(self, w, cen, boundary, cells):
         key, val = next(iter(w.items()))
@@ -933,6 +1081,12 @@ class PoreField(CoupledField):
         self.V = np.zeros(P)
         self.cen = np.zeros((P, st.dim))
         self.C = np.zeros(self.tp.shape[0])
+        if st.dim == 3:
+            self._vertex_forces = np.zeros((4 * P, 3))
+        if P >= PARALLEL_MIN:  # the gathers of the threaded passes (same order as the serial ones)
+            self._pore_ptr, self._pore_items = _owner_index(self.tp, P)
+            if st.dim == 3:
+                self._el_ptr, self._el_items = _owner_index(self.cells, st.n)
         self.csum = np.zeros(P)
         self.P = np.zeros(P)
         self._geom_key = None
@@ -940,16 +1094,31 @@ class PoreField(CoupledField):
     def _geometry(self, st):
         """Volumes, centroids and conductances at the current positions; returns the number of
         inside-out cells."""
-        if self.dim == 2:
-            bad = _geom2(st.x, st.r, self.cells, self.t, self.ap, self.floor, self.V, self.cen,
-                         self._inverted)
+        bad = self._volumes(st, self.cells, self.V, self.cen)
+        args = (st.x, st.r, self.g0, self.tp, self.te, self.slots, st.cstate, self.cen,
+                self.kt, self.ap, self.bond_factor, self.C)
+        if self._threaded():
+            _conductance_par(*args)
+            _pore_sums(self.C, self._pore_ptr, self._pore_items, self.csum)
         else:
-            bad = _geom3(st.x, st.r, self.cells, self.ap, self.floor, self.V, self.cen,
-                         self._inverted)
-        _conductance(st.x, st.r, self.g0, self.tp, self.te, self.slots, st.cstate, self.cen,
-                     self.kt, self.ap, self.bond_factor, self.C, self.csum)
+            _conductance(*args, self.csum)
         self._geom_key = (st.step, st.time)
         return bad
+
+    def _threaded(self, cells=None) -> bool:
+        """Whether the passes over ``cells`` (default the network's) run over the threads."""
+        n = (self.cells if cells is None else cells).shape[0]
+        return n >= PARALLEL_MIN and numba.get_num_threads() > 1
+
+    def _volumes(self, st, cells, V, cen):
+        """Pore volumes ``V`` and centroids ``cen`` of ``cells``; returns the number of cells
+        inside out."""
+        par = self._threaded(cells)
+        if self.dim == 2:
+            fn = _geom2_par if par else _geom2
+            return fn(st.x, st.r, cells, self.t, self.ap, self.floor, V, cen, self._inverted)
+        fn = _geom3_par if par else _geom3
+        return fn(st.x, st.r, cells, self.ap, self.floor, V, cen, self._inverted)
 
     def remesh(self, sim=None) -> dict:
         """Rebuild the pore network at the current positions, conserving the fluid mass (see
@@ -965,10 +1134,7 @@ class PoreField(CoupledField):
         # old densities at the current positions
         Vo = np.zeros(old_cells.shape[0])
         co = np.zeros((old_cells.shape[0], self.dim))
-        if self.dim == 2:
-            _geom2(x, st.r, old_cells, self.t, self.ap, self.floor, Vo, co, self._inverted)
-        else:
-            _geom3(x, st.r, old_cells, self.ap, self.floor, Vo, co, self._inverted)
+        self._volumes(st, old_cells, Vo, co)
         rho_old = old_M / Vo
         new_cells = self._triangulate(x, old_cells)
         old_of_new, new_of_old = self._match(old_cells, new_cells)
@@ -1117,26 +1283,30 @@ class PoreField(CoupledField):
         _pressure(self.M, self.V, self.k_f, self.c_f, self.p_min if use else 0.0, use, self.P)
         return self.P
 
-    def pressure_forces(self, sim=None) -> np.ndarray:
-        """Forces [N] of the current pore pressures on every element, ``(N, dim)``."""
+    def pressure_forces(self, sim=None, out=None) -> np.ndarray:
+        """Forces [N] of the current pore pressures on every element, ``(N, dim)`` (into
+        ``out`` when given)."""
         st = (sim or self.sim).state
-        F = np.zeros((st.n, st.dim))
+        F = np.zeros((st.n, st.dim)) if out is None else out
         if self.dim == 2:
             _forces2(st.x, st.r, self.cells, self.P, self.t, F)
+        elif self._threaded():
+            _forces3_par(st.x, st.r, self.cells, self.P, F, self._vertex_forces, self._el_ptr,
+                         self._el_items)
         else:
-            _forces3(st.x, st.r, self.cells, self.P, _FACES3, F)
+            _forces3(st.x, st.r, self.cells, self.P, F, self._vertex_forces)
         return F
 
     def apply_forces(self, sim) -> None:
         """Replace this field's previous contribution to ``fload`` by the current one; free
         DOFs' ``a`` change by the same delta / m (see the module docstring)."""
         st = sim.state
-        F = self.pressure_forces(sim)
-        delta = F - self.f_prev
-        st.fload += delta
-        fr = st.free != 0.0
-        st.a += np.where(fr, delta / st.m[:, None], 0.0)
-        self.f_prev = F
+        spare = getattr(self, "_f_spare", None)
+        if spare is None or spare.shape != self.f_prev.shape:
+            spare = np.zeros_like(self.f_prev)
+        F = self.pressure_forces(sim, out=spare)
+        _apply_delta(F, self.f_prev, st.fload, st.a, st.free, st.m)
+        self._f_spare, self.f_prev = self.f_prev, F  # two buffers, no allocation per coupling
 
     def mechanical_dt_bound(self, sim=None) -> float:
         """Stability bound [s] of the mechanical step with the fluid's stiffness added.
@@ -1258,7 +1428,7 @@ class PoreField(CoupledField):
     # ------------------------------------------------------------------ checkpoints
     def arrays(self) -> dict:
         return {"cells": self.cells, "M": self.M, "booked": self.booked,
-                "f_prev": self.f_prev, "x_mesh": self.x_mesh, "x0": self.x0, "r0": self.r0,
+                "f_prev": self.f_prev.copy(), "x_mesh": self.x_mesh, "x0": self.x0, "r0": self.r0,
                 "held": self.held,
                 "books": np.array([self.M0, self.couplings, self.remeshes], float),
                 "scales": np.array([self.d_mean, self.t, self.ap, self.kt], float)}

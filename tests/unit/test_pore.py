@@ -423,3 +423,61 @@ def test_number_types_booleans_and_whole_numbers():
     for v in (1.5, float("nan"), -1):
         with pytest.raises(PoreFluidError, match="remesh_every = .*allowed: a whole number >= 0"):
             PoreField(remesh_every=v)
+
+
+def _network_run(dim, parallel_min, threads, monkeypatch):
+    """A jittered bonded lattice with injection, stepped 12 times with remeshes; the arrays a
+    threaded pass writes, afterwards."""
+    import numba
+
+    from geodem.build.lattice import fcc_lattice
+    from geodem.fields import pore
+
+    monkeypatch.setattr(pore, "PARALLEL_MIN", parallel_min)
+    rng = np.random.default_rng(3)
+    x = triangular_lattice(12, 10, D) if dim == 2 else fcc_lattice(5, 4, 4, D)
+    x = x + rng.uniform(-0.1, 0.1, x.shape) * D
+    st = bonded_state(x, 0.5 * D, density=2500.0, kn=2e8, ks=8e7, xb=1e-3 * D, fs0=1e4,
+                      mu=0.5, gap=0.2 * D)
+    st.v[:] = rng.normal(0.0, 0.05, st.v.shape)
+    sim = Simulation(st, backend="numba")
+    centre = [float(v) for v in st.x.mean(axis=0)]
+    f = PoreField(k_f=OIL_KF, c_f=OIL_CF, p_init=1e5, k_t=1e-7, remesh_every=5,
+                  bcs=[{"name": "inj", "where": {"ball": centre + [0.8 * D]},
+                        "pressure": 3e5}])
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        sim.add_field(f)
+        sim.run(12)
+        threaded = f._threaded()
+    finally:
+        numba.set_num_threads(before)
+    assert threaded == (parallel_min == 0) and f.remeshes >= 2
+    s = sim.sync()
+    return [np.array(a) for a in (s.x, s.v, s.a, s.fload, f.M, f.P, f.V, f.cen, f.C, f.csum)]
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_threaded_pore_passes_give_the_serial_bits_at_any_thread_count(dim, monkeypatch):
+    """Volumes, conductances and (3-D) pressure forces over the threads sum in the serial
+    order: the same bits as one thread, whatever the thread count."""
+    import numba
+
+    most = min(3, numba.config.NUMBA_NUM_THREADS)
+    if most < 2:
+        pytest.skip("one numba thread: nothing runs over threads")
+    serial = _network_run(dim, 10 ** 12, 1, monkeypatch)
+    for threads in range(2, most + 1):
+        threaded = _network_run(dim, 0, threads, monkeypatch)
+        for a, b in zip(serial, threaded):
+            assert a.tobytes() == b.tobytes()
+
+
+def test_cells_of_two_networks_are_matched_by_their_vertex_sets():
+    f = PoreField.__new__(PoreField)
+    old = np.array([[0, 1, 2], [1, 2, 3], [2, 3, 5]])
+    new = np.array([[3, 2, 1], [0, 1, 4], [5, 2, 3], [0, 2, 1]])
+    old_of_new, new_of_old = f._match(old, new)
+    assert old_of_new.tolist() == [1, -1, 2, 0]
+    assert new_of_old.tolist() == [3, 0, 2]
