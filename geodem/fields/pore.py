@@ -169,7 +169,7 @@ def _err(msg: str) -> PoreFluidError:
 
 
 # ============================================================================ kernels
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _geom2_cell(x, r, cells, t, ap, floor, V, cen, tol, c):
     """Volume ``V[c]`` [m^3] and vertex centroid ``cen[c]`` of 2-D cell ``c``; returns 1 when
     its area is below -tol (inside out), else 0."""
@@ -223,7 +223,7 @@ def _geom2_par(x, r, cells, t, ap, floor, V, cen, tol):
     return bad
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz):
     """Solid angle [sr] of the triangle (a, b, c) seen from the origin (Van Oosterom-Strackee)."""
     la = math.sqrt(ax * ax + ay * ay + az * az)
@@ -238,7 +238,7 @@ def _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz):
     return om
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _geom3_cell(x, r, cells, ap, floor, V, cen, tol, c):
     """Volume and centroid of tetrahedron ``c``; returns 1 when its volume is below -tol
     (inside out), else 0."""
@@ -296,7 +296,7 @@ def _geom3_par(x, r, cells, ap, floor, V, cen, tol):
     return bad
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _distance(p, a, b):
     """``|p[b] - p[a]|`` [m]."""
     l2 = 0.0
@@ -306,7 +306,7 @@ def _distance(p, a, b):
     return math.sqrt(l2)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _throat_conductance(x, r, g0, tp, te, slots, cstate, cen, kt, ap, bond_factor, t):
     """Conductance [kg/(Pa s)] of throat ``t``: the mean over its pairs (module docstring)."""
     ne = te.shape[1]
@@ -406,7 +406,7 @@ def _hold(M, V, held, pset, booked, kf, cf):
             M[a] = target
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _cscale(x, r, a, b):
     """Where the contact point of pair (a, b), the middle of their gap, lies along the branch
     from a to b (0 at a, 1 at b)."""
@@ -447,7 +447,7 @@ def _forces2(x, r, cells, P, t, F):
 _FACES3 = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], np.int64)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _cpoint(x, r, a, b):
     """Contact point ``q_ab`` of pair (a, b): the middle of their gap on the branch [m]."""
     s = _cscale(x, r, a, b)
@@ -455,7 +455,7 @@ def _cpoint(x, r, a, b):
             x[a, 2] + s * (x[b, 2] - x[a, 2]))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _quad(p, x, v, m, w0, w1, w2):
     """``P/2 (m - x_v) x w``: the force of vertex v's quad (x_v, q_ab, m, q_ca), ``w = q_ca -
     q_ab`` [N]."""
@@ -466,7 +466,7 @@ def _quad(p, x, v, m, w0, w1, w2):
             0.5 * p * (ux * w1 - uy * w0))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _face_forces(p, x, a, b, c, qab, qbc, qca):
     """Forces on a, b, c of the outward face (a, b, c) split into their three quads."""
     m = ((qab[0] + qbc[0] + qca[0]) / 3.0, (qab[1] + qbc[1] + qca[1]) / 3.0,
@@ -478,8 +478,8 @@ def _face_forces(p, x, a, b, c, qab, qbc, qca):
 
 
 @njit(cache=True)
-def _cell_forces3(x, r, cells, P, c, out):
-    """Forces [N] of tetrahedron ``c``'s pressure on its four vertices into ``out[4 c + k]``:
+def _cell_forces3(x, r, cells, P, c, out, o):
+    """Forces [N] of tetrahedron ``c``'s pressure on its four vertices into ``out[o + k]``:
     each outward face (a, b, c) split into the quads ``(x_a, q_ab, m, q_ca)``, ``F = P *
     vector area``; a vertex's three quads summed in face order. The six contact points are
     computed once, so the two faces on an edge share its point exactly."""
@@ -499,7 +499,6 @@ def _cell_forces3(x, r, cells, P, c, out):
     f0b, f3b, f2b = _face_forces(p, x, i0, i3, i2, q03, q23, q02)
     f0c, f1c, f3c = _face_forces(p, x, i0, i1, i3, q01, q13, q03)
     f0d, f2d, f1d = _face_forces(p, x, i0, i2, i1, q02, q12, q01)
-    o = 4 * c
     for d in range(3):
         out[o, d] = f0b[d] + f0c[d] + f0d[d]
         out[o + 1, d] = f1a[d] + f1c[d] + f1d[d]
@@ -510,7 +509,7 @@ def _cell_forces3(x, r, cells, P, c, out):
 @njit(cache=True)
 def _forces3(x, r, cells, P, F, buf):
     """3-D pressure forces (:func:`_cell_forces3`), each element's sum over its cells in
-    ascending order (``buf``: (4 P, 3) scratch)."""
+    ascending order (``buf``: (4, 3) scratch)."""
     for i in range(F.shape[0]):
         F[i, 0] = 0.0
         F[i, 1] = 0.0
@@ -518,12 +517,12 @@ def _forces3(x, r, cells, P, F, buf):
     for c in range(cells.shape[0]):
         if P[c] == 0.0:
             continue
-        _cell_forces3(x, r, cells, P, c, buf)
+        _cell_forces3(x, r, cells, P, c, buf, 0)
         for k in range(4):
             a = cells[c, k]
-            F[a, 0] += buf[4 * c + k, 0]
-            F[a, 1] += buf[4 * c + k, 1]
-            F[a, 2] += buf[4 * c + k, 2]
+            F[a, 0] += buf[k, 0]
+            F[a, 1] += buf[k, 1]
+            F[a, 2] += buf[k, 2]
 
 
 @njit(cache=True, parallel=True)
@@ -538,7 +537,7 @@ def _forces3_par(x, r, cells, P, F, buf, ptr, items):
                 buf[4 * c + k, 1] = 0.0
                 buf[4 * c + k, 2] = 0.0
         else:
-            _cell_forces3(x, r, cells, P, c, buf)
+            _cell_forces3(x, r, cells, P, c, buf, 4 * c)
     for i in prange(F.shape[0]):
         f0 = 0.0
         f1 = 0.0
@@ -1081,12 +1080,11 @@ class PoreField(CoupledField):
         self.V = np.zeros(P)
         self.cen = np.zeros((P, st.dim))
         self.C = np.zeros(self.tp.shape[0])
-        if st.dim == 3:
-            self._vertex_forces = np.zeros((4 * P, 3))
         if P >= PARALLEL_MIN:  # the gathers of the threaded passes (same order as the serial ones)
             self._pore_ptr, self._pore_items = _owner_index(self.tp, P)
             if st.dim == 3:
                 self._el_ptr, self._el_items = _owner_index(self.cells, st.n)
+                self._vertex_forces = np.zeros((4 * P, 3))
         self.csum = np.zeros(P)
         self.P = np.zeros(P)
         self._geom_key = None
@@ -1294,7 +1292,7 @@ class PoreField(CoupledField):
             _forces3_par(st.x, st.r, self.cells, self.P, F, self._vertex_forces, self._el_ptr,
                          self._el_items)
         else:
-            _forces3(st.x, st.r, self.cells, self.P, F, self._vertex_forces)
+            _forces3(st.x, st.r, self.cells, self.P, F, np.empty((4, 3)))
         return F
 
     def apply_forces(self, sim) -> None:
