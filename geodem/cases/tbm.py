@@ -168,6 +168,13 @@ def _element_arrays(sm, d, d_mean: float, dim: int, thickness=None):
     return el
 
 
+#: unbalanced-force ratio the layered block is balanced to (geodem.core.engine.Simulation.balance)
+LAYER_BALANCE_TOL = 1e-3
+#: fewest elements across of that balance: over 2.5 (layers of 2.5 elements) ten rounds stopped
+#: at a ratio of 1.8e-3
+LAYER_BALANCE_MIN_ACROSS = 10.0
+
+
 # ============================================================================ model
 class CutterSpec(Strict):
     """The rigid disc cutter of ``tbm_rock``."""
@@ -280,15 +287,15 @@ class TbmRock(ModelBase):
                 out.append(((key,), msg))
         return out
 
-    def _balance_layers(self, sim, tol: float = 1e-3, rounds: int = 10) -> dict:
+    def _balance_layers(self, sim, tol: float = LAYER_BALANCE_TOL, rounds: int = 10) -> dict:
         """Standard balances after the layers took their rocks, until the unbalanced-force
         ratio is below ``tol``. The new stiffnesses unbalance the packing only across the layer
-        interfaces, so the balance is over the thinner layer's thickness in elements, not the
-        block's height: its steps (50 per element across) and damping (eta_c / n) do not grow
-        with the block, nor its cost faster than the element count (50 x 4.8 steps a round
-        at the 2-D workflow's 12 mm layers of 2.5 mm elements, 3 rounds, against 2 rounds of
-        50 x 20 over the block's height)."""
-        across = min(max(min(self.layer_thickness) / self.d_mean, 1.0), self.n_across())
+        interfaces, so the balance is over the thinner layer's thickness in elements (at least
+        ``LAYER_BALANCE_MIN_ACROSS``, at most the block's height), not the block's height: its
+        steps (50 per element across) and damping (eta_c / n) do not grow with the block, nor
+        its cost faster than the element count."""
+        across = min(max(min(self.layer_thickness) / self.d_mean, LAYER_BALANCE_MIN_ACROSS),
+                     self.n_across())
         ratio, done = math.inf, 0
         while done < rounds and not ratio < tol:
             ratio = sim.balance(across)
@@ -385,10 +392,11 @@ class TbmRock(ModelBase):
                 "thickness": d if dim == 2 else None,
                 "materials": {k: sms[k].label for k in sms},
                 "material_warnings": [w for sm in sms.values() for w in sm.warnings]
-                + packing_notes(rep) + ([] if balance["unbalanced_ratio"] < 1e-3 else [
-                    f"the layered block balanced to an unbalanced-force ratio of "
-                    f"{balance['unbalanced_ratio']:.2g} in {balance['rounds']} rounds "
-                    "(target 1e-3)"]),
+                + packing_notes(rep) + ([] if balance["unbalanced_ratio"] < LAYER_BALANCE_TOL
+                                        else [f"the layered block balanced to an unbalanced-"
+                                              f"force ratio of {balance['unbalanced_ratio']:.2g}"
+                                              f" in {balance['rounds']} rounds (target "
+                                              f"{LAYER_BALANCE_TOL:g})"]),
                 "packed_with": stiff,
                 "layers": {"dip_deg": self.dip_deg, "thickness": list(self.layer_thickness),
                            "first": self.first, "offset": self.layer_offset},

@@ -133,6 +133,37 @@ def test_tiny_cut_books_and_outputs(tiny):
     assert len(vtp) >= 3 and (out / "tbm_vtk" / "tbm.pvd").exists()
 
 
+def test_tiny_block_is_balanced_to_the_tolerance_over_at_most_its_height(tiny):
+    """After the layers take their rocks the block is balanced over the thinner layer's
+    thickness in elements, at least 10, at most the block's height (here 30 mm / 4 mm)."""
+    s, _ = tiny
+    bal = s["results"]["cut"]["layer_balance"]
+    assert bal["n_across"] == pytest.approx(0.03 / 0.004, rel=1e-12)
+    assert bal["unbalanced_ratio"] < 1e-3 and 1 <= bal["rounds"] <= 10
+
+
+def test_the_layer_balance_does_not_grow_with_the_block():
+    from geodem.cases.tbm import LAYER_BALANCE_MIN_ACROSS, TbmRock
+
+    class Counting:
+        def __init__(self):
+            self.calls = []
+
+        def balance(self, across):
+            self.calls.append(across)
+            return 5e-4
+
+    for size, layers, expect in (([0.16, 0.05], [0.012, 0.012], 10.0),
+                                 ([1.6, 0.5], [0.012, 0.012], 10.0),
+                                 ([1.6, 0.5], [0.1, 0.05], 20.0)):
+        model = TbmRock(type="tbm_rock", size=size, d_mean=0.0025, layer_thickness=layers,
+                        soft="rock", strong="rock")
+        sim = Counting()
+        bal = model._balance_layers(sim)
+        assert sim.calls == [expect] and bal["rounds"] == 1
+    assert LAYER_BALANCE_MIN_ACROSS == 10.0
+
+
 def test_tiny_cut_rolling_over_normal_force_follows_the_contact_geometry(tiny):
     """Contact forces normal to the rim act along radii at angles 0..phi from the vertical
     on the front arc (the contact chord, phi = acos(1 - p/R)): without friction F_r / F_n
