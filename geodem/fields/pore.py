@@ -934,6 +934,7 @@ class PoreField(CoupledField):
         self.M0 = float(self.M.sum())
         self.booked[:] = 0.0
         self.f_prev = np.zeros((st.n, st.dim))
+        self._f_spare = None  # the other force buffer of apply_forces
         self.x_mesh = st.x.copy()
         if self.forces and st.dt > 0:
             self.check_mechanical_dt(sim)
@@ -1080,6 +1081,7 @@ class PoreField(CoupledField):
         self.V = np.zeros(P)
         self.cen = np.zeros((P, st.dim))
         self.C = np.zeros(self.tp.shape[0])
+        self._cell_forces = np.empty((4, 3))  # the serial 3-D force pass's scratch
         if P >= PARALLEL_MIN:  # the gathers of the threaded passes (same order as the serial ones)
             self._pore_ptr, self._pore_items = _owner_index(self.tp, P)
             if st.dim == 3:
@@ -1292,14 +1294,14 @@ class PoreField(CoupledField):
             _forces3_par(st.x, st.r, self.cells, self.P, F, self._vertex_forces, self._el_ptr,
                          self._el_items)
         else:
-            _forces3(st.x, st.r, self.cells, self.P, F, np.empty((4, 3)))
+            _forces3(st.x, st.r, self.cells, self.P, F, self._cell_forces)
         return F
 
     def apply_forces(self, sim) -> None:
         """Replace this field's previous contribution to ``fload`` by the current one; free
         DOFs' ``a`` change by the same delta / m (see the module docstring)."""
         st = sim.state
-        spare = getattr(self, "_f_spare", None)
+        spare = self._f_spare
         if spare is None or spare.shape != self.f_prev.shape:
             spare = np.zeros_like(self.f_prev)
         F = self.pressure_forces(sim, out=spare)
