@@ -992,6 +992,9 @@ def rock_cmd(
         "the stored element parameters and micro-structure. With the calibration's packings "
         "it also stores each packing's E, nu, Cu and Tu, if their mean reproduces the "
         "record's."))] = False,
+    resume: Annotated[bool, typer.Option("--resume", help=(
+        "Go on with an interrupted -o DIR: packings already finished there with the same "
+        "material, element parameters, specimen and disc are reused, the others run."))] = False,
 ):
     import json
 
@@ -1014,7 +1017,9 @@ def rock_cmd(
     if save and overrides:
         _fail(f"--save stores a check of the stored calibration: drop {', '.join(overrides)}",
               USER_ERROR)
-    o = _fresh_out_dir(out, overwrite)
+    from pathlib import Path
+
+    o = Path(out) if resume else _fresh_out_dir(out, overwrite)
     el = dict(cal["element"])
     for key, value in (("packing", packing), ("bond_gap", bond_gap),
                        ("bond_strength_weibull", bond_weibull)):
@@ -1040,11 +1045,11 @@ def rock_cmd(
     con = _out()
     con.print(f"measuring {mat.name} ({dim}-D, {structure}) -> {out}", highlight=False)
     folders = [o if packings == 1 else o / f"packing_{spec.seed}" for spec in specs]
-    runs = rock_packings(specs, el, folders, friction, jobs_for(packings, jobs))
-    for spec, folder, run in zip(specs, folders, runs):
-        (folder / "summary.json").write_text(json.dumps(run, indent=2))
+    runs = rock_packings(specs, el, folders, friction, jobs_for(packings, jobs), resume)
+    for spec, run in zip(specs, runs):
         prefix = "" if packings == 1 else f"seed {spec.seed}: "
-        con.print(prefix + _rock_line(run), highlight=False)
+        reused = " (finished before, reused)" if run.pop("resumed", False) else ""
+        con.print(prefix + _rock_line(run) + reused, highlight=False)
     if packings > 1:
         spread = _rock_spread(runs)
         (o / "summary.json").write_text(json.dumps(

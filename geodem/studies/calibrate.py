@@ -941,9 +941,39 @@ def _side_by_side(fn, calls, jobs: int) -> list:
             os.environ["NUMBA_NUM_THREADS"] = saved
 
 
-def measure_rock(spec: CalibrationSpec, el: dict, folder: Path, friction: bool) -> dict:
+def rock_inputs(spec: CalibrationSpec, el: dict, friction: bool) -> dict:
+    """What one packing of ``geodem rock`` depends on (material, dimension, seed, element
+    parameters, specimen and disc), as plain JSON data: a finished packing whose summary
+    carries the same is reused by ``--resume``."""
+    doc = {"material": spec.name, "dim": spec.dim, "seed": spec.seed, "element": el,
+           "structure": spec.structure, "targets": spec.targets, "d_mean": spec.d_mean,
+           "ucs_size": list(spec.ucs_size), "fit": spec.fit,
+           "disc_diameter": spec.disc_diameter, "disc_thickness": spec.disc_thickness,
+           "disc_drop": spec.disc_drop, "friction": bool(friction)}
+    return json.loads(json.dumps(doc, default=float))
+
+
+def finished_packing(folder: Path, inputs: dict) -> dict | None:
+    """The summary in ``folder/summary.json`` when it was written by a finished
+    :func:`measure_rock` with the same ``inputs``, else None."""
+    path = Path(folder) / "summary.json"
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return old if isinstance(old, dict) and old.get("inputs") == inputs else None
+
+
+def measure_rock(spec: CalibrationSpec, el: dict, folder: Path, friction: bool,
+                 resume: bool = False) -> dict:
     """One packing of ``geodem rock``: the UCS, direct-tension and Brazilian runs (and the
-    friction test) in ``folder``; returns its summary."""
+    friction test) in ``folder``; returns its summary, also written to
+    ``folder/summary.json`` as soon as the packing is done. ``resume``: a summary already
+    there with the same :func:`rock_inputs` is returned without running anything (a long
+    check interrupted after some packings goes on from the next)."""
+    inputs = rock_inputs(spec, el, friction)
+    if resume and (done := finished_packing(folder, inputs)) is not None:
+        return dict(done, resumed=True)
     m = measure(spec, el, folder)
     b = brazilian_check(spec, el, folder / "brazilian")
     t = spec.targets
@@ -959,13 +989,17 @@ def measure_rock(spec: CalibrationSpec, el: dict, folder: Path, friction: bool) 
         summary.update(friction_test=f if math.isfinite(f["phi"]) else dict(f, phi=None),
                        target_phi=friction_angle(t["mu_i"]),
                        wall_time_s=summary["wall_time_s"] + f["wall_time_s"])
+    summary["inputs"] = inputs
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    (Path(folder) / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
 
 
-def rock_packings(specs, el: dict, folders, friction: bool, jobs: int) -> list:
+def rock_packings(specs, el: dict, folders, friction: bool, jobs: int,
+                  resume: bool = False) -> list:
     """:func:`measure_rock` of each spec (one packing each) in its folder, ``jobs`` side by
-    side (:func:`_side_by_side`)."""
-    return _side_by_side(measure_rock, [(s, el, Path(f), friction)
+    side (:func:`_side_by_side`); ``resume``: finished packings are reused."""
+    return _side_by_side(measure_rock, [(s, el, Path(f), friction, resume)
                                         for s, f in zip(specs, folders)], jobs)
 
 

@@ -537,3 +537,33 @@ def test_a_friction_angle_the_packings_do_not_resolve_is_noted(tmp_path, spread,
     assert bool(said) == noted
     if noted:
         assert "standard error 6.0 deg > the 2 deg tolerance" in said[0]
+
+
+def test_a_finished_packing_is_reused_only_with_the_same_inputs(tmp_path, monkeypatch):
+    """``geodem rock --resume``: a packing whose summary.json was written with the same
+    material, seed, element parameters and disc is returned without running; a changed
+    element parameter or disc runs it again."""
+    calls = []
+
+    def fake_measure(spec, el, folder):
+        calls.append("measure")
+        return dict(synthetic(spec, el, folder), fits={})
+
+    def fake_disc(spec, el, folder):
+        calls.append("disc")
+        return {"tensile_strength": 4e6, "over_target": 1.0, "wall_time_s": 0.0}
+
+    monkeypatch.setattr(C, "measure", fake_measure)
+    monkeypatch.setattr(C, "brazilian_check", fake_disc)
+    el = {"kn_per_d": 1e10, "ks_per_d": 2e9, "xb_per_d": 1e-3, "fs0_per_d2": 5e7}
+    s = spec()
+    first = C.measure_rock(s, el, tmp_path / "p0", False, resume=True)
+    assert calls == ["measure", "disc"] and "resumed" not in first
+    again = C.measure_rock(s, el, tmp_path / "p0", False, resume=True)
+    assert calls == ["measure", "disc"] and again["resumed"] is True
+    assert again["measured"] == pytest.approx(first["measured"])
+    C.measure_rock(s, dict(el, kn_per_d=2e10), tmp_path / "p0", False, resume=True)
+    C.measure_rock(C.CalibrationSpec(targets=TARGETS, name="synthetic", disc_diameter=0.15),
+                   el, tmp_path / "p0", False, resume=True)
+    C.measure_rock(s, el, tmp_path / "p0", False)  # without resume: always runs
+    assert calls == ["measure", "disc"] * 4
