@@ -1,7 +1,19 @@
-"""What this machine offers the run: the memory available for new allocations."""
+"""What this machine offers the run: the memory available for new allocations, and the
+folder geodem keeps its caches in."""
 from __future__ import annotations
 
 import os
+from pathlib import Path
+
+
+def cache_root() -> Path:
+    """geodem's cache folder: ``$GEODEM_CACHE_DIR``, else ``$XDG_CACHE_HOME/geodem`` or
+    ``~/.cache/geodem`` (generated kernels, jammed packings)."""
+    base = os.environ.get("GEODEM_CACHE_DIR")
+    if not base:
+        base = os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"),
+                            "geodem")
+    return Path(base)
 
 
 def available_memory() -> int | None:

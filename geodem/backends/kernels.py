@@ -71,11 +71,9 @@ def _cuda_bodies(dim, rot, damp, krow, dev):
 
 def cache_dir() -> Path:
     """Folder of the generated CPU kernel modules and numba's cache of them."""
-    base = os.environ.get("GEODEM_CACHE_DIR")
-    if not base:
-        base = os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"),
-                            "geodem")
-    return Path(base) / "kernels"
+    from geodem.machine import cache_root
+
+    return cache_root() / "kernels"
 
 
 def _source_hash(module) -> str:

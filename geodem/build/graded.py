@@ -171,6 +171,7 @@ def graded_packing(lo, hi, size, d, distri_rate=0.2, *, seed=0, overlap=1e-4, ph
     drift = np.linalg.norm(xs - x, axis=1) / d
     rep = {"n": int(n), "scale": scale, "jam_overlap": float(info["mean_overlap"]),
            "jam_cycles": int(info["cycles"]), "fire_iterations": int(info["fire_iterations"]),
+           "jam_cached": info["cached"],
            "max_drift": float(drift.max()), "median_drift": float(np.median(drift)),
            "max_overlap_ratio": overlap_ratio(xs, rs),
            "d_nom_min": float(dn.min() * scale), "d_nom_max": float(dn.max() * scale),

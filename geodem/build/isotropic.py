@@ -257,6 +257,25 @@ def _load(x, r, lo, hi, period=None):
 
 def jam(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60, x0=None,
         periodic=False):
+    """:func:`jam_fresh`, or its result kept from an earlier call with the same inputs
+    (:mod:`geodem.build.jam_cache`: the same bits; ``info["cached"]`` says which)."""
+    from geodem.build import jam_cache
+
+    k = jam_cache.key(r0, lo, hi, overlap, seed, max_cycles, x0, periodic)
+    hit = jam_cache.load(k)
+    if hit is not None:
+        x, r, info = hit
+        progress.report(f"jamming: {r.size:,} elements taken from the packing cache (jammed "
+                        f"before with the same inputs; GEODEM_PACKING_CACHE=0 jams anew)")
+        return x, r, dict(info, cached=True)
+    x, r, info = jam_fresh(r0, lo, hi, overlap=overlap, seed=seed, max_cycles=max_cycles,
+                           x0=x0, periodic=periodic)
+    jam_cache.store(k, x, r, info)
+    return x, r, dict(info, cached=False)
+
+
+def jam_fresh(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60, x0=None,
+              periodic=False):
     """Compress the spheres of radii ``r0`` (reduced units, ``d_mean`` ~ 1) isotropically
     inside the box ``[lo, hi]`` by radius expansion until the mean overlap of the contacts is
     within a factor 2 of ``overlap`` (module docstring, step 2). Returns ``(x, r, info)``.
@@ -513,7 +532,8 @@ def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=None
     vol = packing.element_volume(rs, dim).sum() / np.prod(hi)
     rep = {"n": int(n), "d_mean": 2.0 * float(rs.mean()) * d_mean, "scale": info["scale"],
            "jam_overlap": info["mean_overlap"], "jam_cycles": info["cycles"],
-           "fire_iterations": info["fire_iterations"], "bonds": int(i.size),
+           "fire_iterations": info["fire_iterations"], "jam_cached": info["cached"],
+           "bonds": int(i.size),
            "face_contacts": len(faces), "rattler_bonds": int(added),
            "max_radius_change": float(np.abs(rs / rj - 1.0).max()),
            "max_shift": float(np.abs(xs - xj).max()), "residual": res,
@@ -572,7 +592,8 @@ def tiled_packing(size, d_mean, distri_rate, cells, n_cell, *, seed=0,
     vol = packing.element_volume(r, dim).sum() / np.prod(hi)
     rep = {"n": int(r.size), "d_mean": 2.0 * float(r.mean()) * d_mean, "scale": info["scale"],
            "jam_overlap": info["mean_overlap"], "jam_cycles": info["cycles"],
-           "fire_iterations": info["fire_iterations"], "bonds": int(pi.size),
+           "fire_iterations": info["fire_iterations"], "jam_cached": info["cached"],
+           "bonds": int(pi.size),
            "face_contacts": 0, "rattler_bonds": int(added) * int(np.prod(cells)),
            "max_radius_change": float(np.abs(rs / rj - 1.0).max()), "max_shift": shift,
            "residual": res, "packing_fraction": float(vol),

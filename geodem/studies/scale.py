@@ -145,10 +145,12 @@ def _io_costs(state, folder) -> dict:
 def measure(family: str, n: int, backend: str = "numba", steps: int | None = None) -> dict:
     """One point: build, memory, throughput and I/O of ``family`` at about ``n`` elements."""
     from geodem.bench import bench_one
+    from geodem.build import jam_cache
 
     if family not in BUILDERS:
         raise ValueError(f"family {family!r}: allowed: {', '.join(FAMILIES)}")
-    (state, info), build = _timed(BUILDERS[family], int(n))
+    with jam_cache.off():  # the build is measured: jammed anew, never read back
+        (state, info), build = _timed(BUILDERS[family], int(n))
     rec = {"family": family, "n_requested": int(n), "n": int(state.n), "build_s": build, **info}
     with tempfile.TemporaryDirectory(prefix="geodem-scale-") as tmp:
         rec.update(_io_costs(state, Path(tmp)))
