@@ -614,6 +614,10 @@ def _fresh_out_dir(out: str, overwrite: bool):
     return o
 
 
+ResumeRunsOpt = Annotated[bool, typer.Option("--resume", help=(
+    "Go on with an interrupted -o DIR: its runs that ended ok with the same workflow (and "
+    "the packings of 'geodem rock' finished with the same inputs) are reused, an interrupted "
+    "run goes on from its last checkpoint, the rest runs."))]
 MaterialArg = Annotated[str, typer.Argument(
     metavar="MATERIAL", help="Library name (e.g. granite) or path of a material file.")]
 OutDirOpt = Annotated[str, typer.Option("-o", "--out", help="Output directory (created).")]
@@ -783,6 +787,7 @@ def calibrate_cmd(
     rolling_stiffness: RollingStiffnessOpt = None,
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace the contents of an "
                                                                 "existing -o DIR.")] = False,
+    resume: ResumeRunsOpt = False,
     force: Annotated[bool, typer.Option("--force", help="Calibrate even when the targets lie "
                                                         "outside the charted reachable "
                                                         "region (then E, nu and --prefer "
@@ -833,7 +838,9 @@ def calibrate_cmd(
     mat = load_material(material)
     path = material_path(material)
     first = _start_element(start, dim) if start else None
-    o = _fresh_out_dir(out, overwrite)
+    from pathlib import Path
+
+    o = Path(out) if resume else _fresh_out_dir(out, overwrite)
     if dim == 3:
         size = (0.1, 0.1, 0.2)
     else:
@@ -867,7 +874,8 @@ def calibrate_cmd(
                                ucs_size=size, seed=seed, iterations=iterations,
                                backend=backend, prefer=prefer, structure=structure,
                                check_reach=not force, friction=friction,
-                               packings=packings, fit=fit or "elastic", jobs=jobs, **disc)
+                               packings=packings, fit=fit or "elastic", jobs=jobs,
+                               resume=resume, **disc)
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
     if not force:
@@ -992,9 +1000,7 @@ def rock_cmd(
         "the stored element parameters and micro-structure. With the calibration's packings "
         "it also stores each packing's E, nu, Cu and Tu, if their mean reproduces the "
         "record's."))] = False,
-    resume: Annotated[bool, typer.Option("--resume", help=(
-        "Go on with an interrupted -o DIR: packings already finished there with the same "
-        "material, element parameters, specimen and disc are reused, the others run."))] = False,
+    resume: ResumeRunsOpt = False,
 ):
     import json
 
@@ -1037,15 +1043,15 @@ def rock_cmd(
                                  d_mean=float(sp.get("d_mean", 0.01 if dim == 3 else 0.005)),
                                  ucs_size=size, seed=first + k, iterations=1,
                                  structure=structure, fit=fit or sp.get("fit", "window"),
-                                 **_disc_options(disc_diameter, disc_drop, sp,
-                                                 disc_thickness))
+                                 resume=resume, **_disc_options(disc_diameter, disc_drop, sp,
+                                                                disc_thickness))
                  for k in range(packings)]
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)
     con = _out()
     con.print(f"measuring {mat.name} ({dim}-D, {structure}) -> {out}", highlight=False)
     folders = [o if packings == 1 else o / f"packing_{spec.seed}" for spec in specs]
-    runs = rock_packings(specs, el, folders, friction, jobs_for(packings, jobs), resume)
+    runs = rock_packings(specs, el, folders, friction, jobs_for(packings, jobs))
     for spec, run in zip(specs, runs):
         prefix = "" if packings == 1 else f"seed {spec.seed}: "
         reused = " (finished before, reused)" if run.pop("resumed", False) else ""

@@ -370,6 +370,10 @@ class CalibrationSpec:
     # another in this process). The results do not depend on it: a run's numbers do not
     # depend on its thread count
     jobs: int | None = None
+    # go on with runs left in the folders: a run whose summary says ok with the same workflow
+    # is reused, one interrupted with a checkpoint goes on from it (:func:`_run`), and a
+    # finished packing of ``geodem rock`` is reused whole (:func:`measure_rock`)
+    resume: bool = False
 
     def __post_init__(self):
         if self.dim not in (2, 3):
@@ -816,15 +820,46 @@ def _brazilian_workflow(spec, el):
             "outputs": {"observables": {"every": 1000}}}
 
 
-def _run(doc, folder: Path, backend):
+def _finished_run(wf: Path, out: Path, backend) -> dict | None:
+    """The summary of the run in ``out`` when it ended ok with the workflow ``wf`` as it is
+    now (the same config hash), else None."""
+    from geodem.workflow.runner import config_hash, validated
+
+    try:
+        old = json.loads((out / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(old, dict) or old.get("status") != "ok":
+        return None
+    return old if old.get("config_hash") == config_hash(validated(wf, (), backend)[3]) else None
+
+
+def _run(doc, folder: Path, backend, resume: bool = False):
+    """Run the workflow ``doc`` in ``folder/out`` (written to ``folder/workflow.yaml``).
+    ``resume``: a run there that ended ok with the same workflow is returned as it is, and one
+    interrupted after a checkpoint goes on from it (the runner refuses a checkpoint of another
+    workflow; then it starts again)."""
     from geodem.workflow import run_workflow
+    from geodem.workflow.errors import WorkflowError
+    from geodem.workflow.rundir import RunDir
 
     folder.mkdir(parents=True, exist_ok=True)
     wf = folder / "workflow.yaml"
     wf.write_text("# written by geodem calibrate; rerun with: geodem run workflow.yaml -o out\n"
                   + yaml.safe_dump(doc, sort_keys=False))
-    code, summary = run_workflow(wf, folder / "out", backend=backend, overwrite=True,
-                                 echo=False, progress=False)
+    out = folder / "out"
+    if resume and (done := _finished_run(wf, out, backend)) is not None:
+        return done
+    code = summary = None
+    if resume and RunDir(out).checkpoint_markers():
+        try:
+            code, summary = run_workflow(wf, out, backend=backend, resume=True, echo=False,
+                                         progress=False)
+        except WorkflowError:  # a checkpoint of another workflow: start again
+            code = None
+    if code is None:
+        code, summary = run_workflow(wf, out, backend=backend, overwrite=True, echo=False,
+                                     progress=False)
     if code != 0 or summary.get("status") != "ok":
         raise RuntimeError(f"calibration run {wf} failed ({summary.get('status')}): "
                            f"{summary.get('error')}")
@@ -835,8 +870,8 @@ def measure(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
     """Run the UCS and direct-tension workflows on the specimen with element parameters
     ``el``; returns E, nu, Cu (UCS), Tu (direct tension) and the wall time."""
     t0 = time.perf_counter()
-    u = _run(_ucs_workflow(spec, el), folder / "ucs", spec.backend)
-    d = _run(_tension_workflow(spec, el), folder / "tension", spec.backend)
+    u = _run(_ucs_workflow(spec, el), folder / "ucs", spec.backend, spec.resume)
+    d = _run(_tension_workflow(spec, el), folder / "tension", spec.backend, spec.resume)
     if u.get("E") is None or u.get("nu") is None:
         raise RuntimeError(f"the UCS run in {folder / 'ucs'} gave no E / nu fit "
                            f"({u['results']['ucs'].get('fit_error')})")
@@ -854,7 +889,7 @@ def measure_friction(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
     from geodem.studies.friction import two_point_angle
 
     t0 = time.perf_counter()
-    r = _run(_triaxial_workflow(spec, el), folder, spec.backend)
+    r = _run(_triaxial_workflow(spec, el), folder, spec.backend, spec.resume)
     peaks = list(r.get("peak_strengths") or [None, None]) + [None, None]
     p0, pc = peaks[0], peaks[1]
     if p0 is None:
@@ -870,7 +905,7 @@ def brazilian_check(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
     as workflows/brazilian.yaml): its tensile strength, that over the direct-tension Tu
     target, where its first cracks formed (0 centre, 1 rim) and the wall time."""
     t0 = time.perf_counter()
-    b = _run(_brazilian_workflow(spec, el), folder, spec.backend)
+    b = _run(_brazilian_workflow(spec, el), folder, spec.backend, spec.resume)
     r = b["results"]["brazilian"]
     T = float(r["tensile_strength"])
     return {"tensile_strength": T, "over_target": T / float(spec.targets["Tu"]),
@@ -964,15 +999,15 @@ def finished_packing(folder: Path, inputs: dict) -> dict | None:
     return old if isinstance(old, dict) and old.get("inputs") == inputs else None
 
 
-def measure_rock(spec: CalibrationSpec, el: dict, folder: Path, friction: bool,
-                 resume: bool = False) -> dict:
+def measure_rock(spec: CalibrationSpec, el: dict, folder: Path, friction: bool) -> dict:
     """One packing of ``geodem rock``: the UCS, direct-tension and Brazilian runs (and the
     friction test) in ``folder``; returns its summary, also written to
-    ``folder/summary.json`` as soon as the packing is done. ``resume``: a summary already
-    there with the same :func:`rock_inputs` is returned without running anything (a long
-    check interrupted after some packings goes on from the next)."""
+    ``folder/summary.json`` as soon as the packing is done. ``spec.resume``: a summary
+    already there with the same :func:`rock_inputs` is returned without running anything, and
+    the runs of an unfinished packing are reused or go on from their checkpoints
+    (:func:`_run`), so a long check interrupted goes on where it stopped."""
     inputs = rock_inputs(spec, el, friction)
-    if resume and (done := finished_packing(folder, inputs)) is not None:
+    if spec.resume and (done := finished_packing(folder, inputs)) is not None:
         return dict(done, resumed=True)
     m = measure(spec, el, folder)
     b = brazilian_check(spec, el, folder / "brazilian")
@@ -995,11 +1030,10 @@ def measure_rock(spec: CalibrationSpec, el: dict, folder: Path, friction: bool,
     return summary
 
 
-def rock_packings(specs, el: dict, folders, friction: bool, jobs: int,
-                  resume: bool = False) -> list:
+def rock_packings(specs, el: dict, folders, friction: bool, jobs: int) -> list:
     """:func:`measure_rock` of each spec (one packing each) in its folder, ``jobs`` side by
-    side (:func:`_side_by_side`); ``resume``: finished packings are reused."""
-    return _side_by_side(measure_rock, [(s, el, Path(f), friction, resume)
+    side (:func:`_side_by_side`)."""
+    return _side_by_side(measure_rock, [(s, el, Path(f), friction)
                                         for s, f in zip(specs, folders)], jobs)
 
 

@@ -556,14 +556,15 @@ def test_a_finished_packing_is_reused_only_with_the_same_inputs(tmp_path, monkey
     monkeypatch.setattr(C, "measure", fake_measure)
     monkeypatch.setattr(C, "brazilian_check", fake_disc)
     el = {"kn_per_d": 1e10, "ks_per_d": 2e9, "xb_per_d": 1e-3, "fs0_per_d2": 5e7}
-    s = spec()
-    first = C.measure_rock(s, el, tmp_path / "p0", False, resume=True)
+    s = C.CalibrationSpec(targets=TARGETS, name="synthetic", resume=True)
+    first = C.measure_rock(s, el, tmp_path / "p0", False)
     assert calls == ["measure", "disc"] and "resumed" not in first
-    again = C.measure_rock(s, el, tmp_path / "p0", False, resume=True)
+    again = C.measure_rock(s, el, tmp_path / "p0", False)
     assert calls == ["measure", "disc"] and again["resumed"] is True
     assert again["measured"] == pytest.approx(first["measured"])
-    C.measure_rock(s, dict(el, kn_per_d=2e10), tmp_path / "p0", False, resume=True)
-    C.measure_rock(C.CalibrationSpec(targets=TARGETS, name="synthetic", disc_diameter=0.15),
-                   el, tmp_path / "p0", False, resume=True)
-    C.measure_rock(s, el, tmp_path / "p0", False)  # without resume: always runs
+    C.measure_rock(s, dict(el, kn_per_d=2e10), tmp_path / "p0", False)
+    C.measure_rock(C.CalibrationSpec(targets=TARGETS, name="synthetic", disc_diameter=0.15,
+                                     resume=True), el, tmp_path / "p0", False)
+    C.measure_rock(C.CalibrationSpec(targets=TARGETS, name="synthetic"), el, tmp_path / "p0",
+                   False)  # without resume: always runs
     assert calls == ["measure", "disc"] * 4

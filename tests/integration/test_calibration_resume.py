@@ -1,0 +1,50 @@
+"""Long calibration checks go on where they stopped: a run that ended ok with the same
+workflow is reused, an interrupted one goes on from its checkpoint to the same bits."""
+import json
+
+import pytest
+
+from geodem.materials_library import load_material
+from geodem.studies import calibrate as C
+
+
+@pytest.fixture(scope="module")
+def spec_el():
+    mat = load_material("sandstone")
+    el = dict(mat.calibrated["2d"]["element"])
+    spec = C.CalibrationSpec(targets=mat.values(), name="sandstone", ucs_size=(0.03, 0.06),
+                             structure={k: el[k] for k in ("packing", "rotation", "bond_moment",
+                                                           "rolling_friction",
+                                                           "rolling_stiffness")})
+    return spec, el
+
+
+def test_a_finished_run_is_reused_and_an_interrupted_one_goes_on(spec_el, tmp_path,
+                                                                   monkeypatch):
+    from geodem.workflow import run_workflow
+
+    spec, el = spec_el
+    doc = C._tension_workflow(spec, el)
+    fresh = C._run(doc, tmp_path / "fresh", None)
+    # interrupted after 300 steps (a checkpoint is written), then resumed by _run
+    C._run(doc, tmp_path / "cut", None)  # writes workflow.yaml and a finished run ...
+    wf = tmp_path / "cut" / "workflow.yaml"
+    code, cut = run_workflow(wf, tmp_path / "cut" / "out", overwrite=True, echo=False,
+                             progress=False, stop_after_steps=300)
+    assert cut["status"] == "interrupted"
+    resumed = C._run(doc, tmp_path / "cut", None, resume=True)
+    assert resumed["status"] == "ok" and resumed["state_sha256"] == fresh["state_sha256"]
+    assert resumed["tensile_strength"] == fresh["tensile_strength"]
+    # ... and once finished it is read back without running
+    import geodem.workflow as wfmod
+
+    monkeypatch.setattr(wfmod, "run_workflow", lambda *a, **k: pytest.fail("ran again"))
+    again = C._run(doc, tmp_path / "cut", None, resume=True)
+    assert again["state_sha256"] == fresh["state_sha256"]
+    # a changed workflow is not passed off as finished: it runs
+    monkeypatch.undo()
+    changed = dict(doc, steps=[dict(doc["steps"][0], strain_rate=0.1)])
+    other = C._run(changed, tmp_path / "cut", None, resume=True)
+    assert other["status"] == "ok" and other["state_sha256"] != fresh["state_sha256"]
+    assert json.loads((tmp_path / "cut" / "out" / "summary.json").read_text())[
+        "state_sha256"] == other["state_sha256"]
