@@ -869,16 +869,41 @@ def _run(doc, folder: Path, backend, resume: bool = False):
 def measure(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
     """Run the UCS and direct-tension workflows on the specimen with element parameters
     ``el``; returns E, nu, Cu (UCS), Tu (direct tension) and the wall time."""
+    u, tu = _measure_part(spec, el, folder, "ucs")
+    d, td = _measure_part(spec, el, folder, "tension")
+    return _measured(u, d, folder, tu + td)
+
+
+def _measure_part(spec: CalibrationSpec, el: dict, folder: Path, part: str):
+    """One run of :func:`measure`, ``part`` 'ucs' or 'tension', in ``folder/part``: its
+    summary and wall time [s]."""
     t0 = time.perf_counter()
-    u = _run(_ucs_workflow(spec, el), folder / "ucs", spec.backend, spec.resume)
-    d = _run(_tension_workflow(spec, el), folder / "tension", spec.backend, spec.resume)
+    doc = _ucs_workflow(spec, el) if part == "ucs" else _tension_workflow(spec, el)
+    return _run(doc, Path(folder) / part, spec.backend, spec.resume), time.perf_counter() - t0
+
+
+def _measured(u: dict, d: dict, folder: Path, wall: float) -> dict:
+    """:func:`measure`'s result from the UCS run's summary ``u`` and the tension run's ``d``."""
     if u.get("E") is None or u.get("nu") is None:
-        raise RuntimeError(f"the UCS run in {folder / 'ucs'} gave no E / nu fit "
+        raise RuntimeError(f"the UCS run in {Path(folder) / 'ucs'} gave no E / nu fit "
                            f"({u['results']['ucs'].get('fit_error')})")
     r = u["results"]["ucs"]
     return {"E": float(u["E"]), "nu": float(u["nu"]), "Cu": float(u["ucs"]),
-            "Tu": float(d["tensile_strength"]), "wall_time_s": time.perf_counter() - t0,
+            "Tu": float(d["tensile_strength"]), "wall_time_s": float(wall),
             "fits": {k: r[k] for k in ("window", "elastic") if k in r}}
+
+
+def _measure_side_by_side(calls, jobs: int) -> list:
+    """:func:`measure` of each ``(spec, el, folder)`` in ``calls``, with every packing's UCS and
+    tension runs as separate jobs on ``jobs`` processes, the UCS runs (the longer) first: three
+    packings on two processes then take about two UCS runs' time instead of two packings'
+    (UCS and tension). The same runs as one after another, so the same numbers."""
+    parts = [(spec, el, folder, part) for part in ("ucs", "tension")
+             for spec, el, folder in calls]
+    done = _side_by_side(_measure_part, parts, jobs)
+    n = len(calls)
+    return [_measured(done[k][0], done[n + k][0], calls[k][2], done[k][1] + done[n + k][1])
+            for k in range(n)]
 
 
 def measure_friction(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
@@ -924,7 +949,11 @@ def over_packings(fn, spec: CalibrationSpec, el: dict, folder: Path) -> dict:
         return fn(spec, el, folder)
     calls = [(replace(spec, seed=spec.seed + k, packings=1), el,
               Path(folder) / f"packing_{spec.seed + k}") for k in range(spec.packings)]
-    runs = _side_by_side(fn, calls, packing_jobs(spec))
+    jobs = packing_jobs(spec)
+    if fn is measure and jobs > 1:
+        runs = _measure_side_by_side(calls, jobs)
+    else:
+        runs = _side_by_side(fn, calls, jobs)
     keys = [k for k, v in runs[0].items() if isinstance(v, (int, float)) and
             not isinstance(v, bool) and all(isinstance(r.get(k), (int, float)) for r in runs)]
     out = {k: float(np.mean([r[k] for r in runs])) for k in keys}
