@@ -247,6 +247,8 @@ def calibration_cells(row: dict) -> list[str]:
     run = rec.get("run") or {}
     when = (f"{run['date']}, {run['wall_time_s']:.0f} s on {run['threads']} thread"
             f"{'s' if run.get('threads') != 1 else ''}" if run else "")
+    if run.get("check_wall_time_s") is not None:
+        when += f" (disc check {run['check_wall_time_s']:.0f} s)"
     phi = m.get("phi")
     phi_se = (rec.get("friction_test") or {}).get("phi_standard_error")
     phi_cell = (f"{phi:.1f} deg ({phi - phi_lab:+.1f})"

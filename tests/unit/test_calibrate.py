@@ -170,6 +170,8 @@ def test_the_brazilian_check_and_the_tensile_test_are_stored_with_the_calibratio
     check = {"tensile_strength": 4.4e6, "over_target": 1.1, "crack_start_offset": 0.83,
              "stopped_by": "drop", "wall_time_s": 5.0}
     block = C.calibration_block(dict(out, brazilian=check))["2d"]
+    assert 0.0 <= out["check_wall_time_s"] <= out["wall_time_s"]
+    assert block["run"]["check_wall_time_s"] == round(out["check_wall_time_s"], 1)
     assert block["brazilian"] == {"tensile_strength": 4.4e6, "over_target": 1.1,
                                   "crack_start_offset": 0.83}
     assert "brazilian" not in C.calibration_block(out)["2d"]

@@ -168,6 +168,9 @@ def test_calibration_table_by_hand(tmp_path):
             "(converged) | 15.3 GPa (+2.0 %) | 0.185 (-0.015) | 72 MPa (-4.0 %) | 4.2 MPa "
             "(+5.0 %) | not matched | 1.10") in text
     assert "2026-12-04, 45 s on 1 thread |" in text
+    rec["run"].update(check_wall_time_s=20.0, jobs=1)  # a record that times its disc check
+    assert "2026-12-04, 45 s on 1 thread (disc check 20 s) |" in calibration_markdown(
+        2, [_write(tmp_path, doc, "timed.yaml")])
     assert "| bare (15 GPa, 0.2, 75 MPa, 4 MPa, 35 deg) | no 2-D calibration |" in text
     # a turning rock that matched its friction angle, checked on a disc 40 elements across
     rec["measured"]["phi"] = 36.2
