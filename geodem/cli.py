@@ -825,6 +825,7 @@ def calibrate_cmd(
 ):
 
     from geodem.studies.calibrate import (CalibrationSpec, UnreachableTarget, calibrate,
+                                           runs_told,
                                            check_reachable, library_friction_left_out,
                                            library_recipe, library_turning_left_out,
                                            save_calibration)
@@ -907,7 +908,8 @@ def calibrate_cmd(
                   f"Tu {m['Tu']:.4g} Pa ({e['Tu']:+.1%}){_phi_text(rec)}; "
                   f"{rec['wall_time_s']:.0f} s", highlight=False)
 
-    summary = calibrate(spec, o, progress=report, start=first)
+    with runs_told():
+        summary = calibrate(spec, o, progress=report, start=first)
     b = summary["brazilian"]
     off = b["crack_start_offset"]
     con.print(f"check: Brazilian disc {b['tensile_strength']:.4g} Pa = {b['over_target']:.3g} x "
@@ -1004,7 +1006,8 @@ def rock_cmd(
 ):
     import json
 
-    from geodem.studies.calibrate import CalibrationSpec, jobs_for, rock_packings
+    from geodem.studies.calibrate import (CalibrationSpec, jobs_for, rock_packings,
+                                          runs_told)
     from geodem.materials import STRUCTURE_KEYS
     from geodem.materials_library import load_material
 
@@ -1051,7 +1054,8 @@ def rock_cmd(
     con = _out()
     con.print(f"measuring {mat.name} ({dim}-D, {structure}) -> {out}", highlight=False)
     folders = [o if packings == 1 else o / f"packing_{spec.seed}" for spec in specs]
-    runs = rock_packings(specs, el, folders, friction, jobs_for(packings, jobs))
+    with runs_told():
+        runs = rock_packings(specs, el, folders, friction, jobs_for(packings, jobs))
     for spec, run in zip(specs, runs):
         prefix = "" if packings == 1 else f"seed {spec.seed}: "
         reused = " (finished before, reused)" if run.pop("resumed", False) else ""

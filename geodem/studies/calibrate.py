@@ -60,6 +60,7 @@ as unreachable with the reason.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import time
@@ -834,6 +835,37 @@ def _finished_run(wf: Path, out: Path, backend) -> dict | None:
     return old if old.get("config_hash") == config_hash(validated(wf, (), backend)[3]) else None
 
 
+#: "1" (:func:`runs_told`, used by ``geodem calibrate`` and ``geodem rock``; processes
+#: started for the packings inherit it): every run of a calibration or check says on stderr when it starts
+#: and ends, so an hour-long 3-D check is not silent
+RUN_PROGRESS_ENV = "GEODEM_CALIBRATION_PROGRESS"
+
+
+@contextlib.contextmanager
+def runs_told():
+    """Within this block every run says on stderr when it starts and ends (:func:`_tell`),
+    in this process and in the processes started for the packings."""
+    import os
+
+    saved = os.environ.get(RUN_PROGRESS_ENV)
+    os.environ[RUN_PROGRESS_ENV] = "1"
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(RUN_PROGRESS_ENV, None)
+        else:
+            os.environ[RUN_PROGRESS_ENV] = saved
+
+
+def _tell(text: str) -> None:
+    import os
+    import sys
+
+    if os.environ.get(RUN_PROGRESS_ENV) == "1":
+        print(f"  {time.strftime('%H:%M:%S')} {text}", file=sys.stderr, flush=True)
+
+
 def _run(doc, folder: Path, backend, resume: bool = False):
     """Run the workflow ``doc`` in ``folder/out`` (written to ``folder/workflow.yaml``).
     ``resume``: a run there that ended ok with the same workflow is returned as it is, and one
@@ -849,17 +881,23 @@ def _run(doc, folder: Path, backend, resume: bool = False):
                   + yaml.safe_dump(doc, sort_keys=False))
     out = folder / "out"
     if resume and (done := _finished_run(wf, out, backend)) is not None:
+        _tell(f"{folder}: finished before, reused")
         return done
     code = summary = None
     if resume and RunDir(out).checkpoint_markers():
+        _tell(f"{folder}: going on from its last checkpoint (progress: {out / 'log.txt'})")
         try:
             code, summary = run_workflow(wf, out, backend=backend, resume=True, echo=False,
                                          progress=False)
         except WorkflowError:  # a checkpoint of another workflow: start again
             code = None
     if code is None:
+        _tell(f"{folder}: building and running (progress: {out / 'log.txt'})")
         code, summary = run_workflow(wf, out, backend=backend, overwrite=True, echo=False,
                                      progress=False)
+    _tell(f"{folder}: {summary.get('status')}, {int(summary.get('steps') or 0):,} time steps "
+          f"of {int(summary.get('n_elements') or 0):,} elements, "
+          f"{float(summary.get('wall_time_s') or 0.0):.0f} s")
     if code != 0 or summary.get("status") != "ok":
         raise RuntimeError(f"calibration run {wf} failed ({summary.get('status')}): "
                            f"{summary.get('error')}")

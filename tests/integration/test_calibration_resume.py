@@ -20,7 +20,7 @@ def spec_el():
 
 
 def test_a_finished_run_is_reused_and_an_interrupted_one_goes_on(spec_el, tmp_path,
-                                                                   monkeypatch):
+                                                                   monkeypatch, capsys):
     from geodem.workflow import run_workflow
 
     spec, el = spec_el
@@ -39,12 +39,20 @@ def test_a_finished_run_is_reused_and_an_interrupted_one_goes_on(spec_el, tmp_pa
     import geodem.workflow as wfmod
 
     monkeypatch.setattr(wfmod, "run_workflow", lambda *a, **k: pytest.fail("ran again"))
-    again = C._run(doc, tmp_path / "cut", None, resume=True)
+    capsys.readouterr()
+    with C.runs_told():  # and says so
+        again = C._run(doc, tmp_path / "cut", None, resume=True)
     assert again["state_sha256"] == fresh["state_sha256"]
+    told = capsys.readouterr().err
+    assert "cut: finished before, reused" in told
+    assert C.RUN_PROGRESS_ENV not in __import__("os").environ
     # a changed workflow is not passed off as finished: it runs
     monkeypatch.undo()
     changed = dict(doc, steps=[dict(doc["steps"][0], strain_rate=0.1)])
-    other = C._run(changed, tmp_path / "cut", None, resume=True)
+    with C.runs_told():
+        other = C._run(changed, tmp_path / "cut", None, resume=True)
+    told = capsys.readouterr().err
+    assert "cut: building and running" in told and f"of {other['n_elements']:,} elements" in told
     assert other["status"] == "ok" and other["state_sha256"] != fresh["state_sha256"]
     assert json.loads((tmp_path / "cut" / "out" / "summary.json").read_text())[
         "state_sha256"] == other["state_sha256"]
