@@ -27,6 +27,7 @@ problem, ``FILE.yaml:LINE: <field path>: <message>``; other failures exit with s
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import math
@@ -908,7 +909,7 @@ def calibrate_cmd(
                   f"Tu {m['Tu']:.4g} Pa ({e['Tu']:+.1%}){_phi_text(rec)}; "
                   f"{rec['wall_time_s']:.0f} s", highlight=False)
 
-    with runs_told():
+    with runs_told(), _interrupted_runs():
         summary = calibrate(spec, o, progress=report, start=first)
     b = summary["brazilian"]
     off = b["crack_start_offset"]
@@ -1054,7 +1055,7 @@ def rock_cmd(
     con = _out()
     con.print(f"measuring {mat.name} ({dim}-D, {structure}) -> {out}", highlight=False)
     folders = [o if packings == 1 else o / f"packing_{spec.seed}" for spec in specs]
-    with runs_told():
+    with runs_told(), _interrupted_runs():
         runs = rock_packings(specs, el, folders, friction, jobs_for(packings, jobs))
     for spec, run in zip(specs, runs):
         prefix = "" if packings == 1 else f"seed {spec.seed}: "
@@ -1087,6 +1088,17 @@ def rock_cmd(
             con.print(f"each packing's E, nu, Cu and Tu not stored: {miss}" if miss else
                       f"saved each packing's E, nu, Cu and Tu (their mean reproduces the "
                       f"record's) into {path}", highlight=False)
+
+
+@contextlib.contextmanager
+def _interrupted_runs():
+    """A calibration run stopped by a signal: say how to go on, exit 128 + the signal."""
+    from geodem.studies.calibrate import RunInterrupted
+
+    try:
+        yield
+    except RunInterrupted as exc:
+        _fail(f"interrupted: {exc}", exc.code)
 
 
 def _check_fit(fit) -> None:

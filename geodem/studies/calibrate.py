@@ -417,6 +417,18 @@ class CalibrationSpec:
         packing_recipe(self.structure, self.dim)
 
 
+class RunInterrupted(RuntimeError):
+    """A run of a calibration or check stopped by a signal after writing its checkpoint;
+    ``code`` is the runner's exit status (128 + the signal)."""
+
+    def __init__(self, code: int, message: str):
+        super().__init__(message)
+        self.code = int(code)
+
+    def __reduce__(self):  # raised in a packing's process, re-raised in this one
+        return (RunInterrupted, (self.code, str(self)))
+
+
 class UnreachableTarget(ValueError):
     """The targets lie outside the charted reachable region (message: the measured bounds)."""
 
@@ -898,6 +910,11 @@ def _run(doc, folder: Path, backend, resume: bool = False):
     _tell(f"{folder}: {summary.get('status')}, {int(summary.get('steps') or 0):,} time steps "
           f"of {int(summary.get('n_elements') or 0):,} elements, "
           f"{float(summary.get('wall_time_s') or 0.0):.0f} s")
+    if summary.get("status") == "interrupted":
+        raise RunInterrupted(code or 130, (
+            f"{wf.parent} was interrupted at time step {int(summary.get('steps') or 0):,}; its "
+            f"checkpoint is kept in {out / 'checkpoints'}, and the same command with --resume "
+            f"goes on from it (the runs already finished are reused)"))
     if code != 0 or summary.get("status") != "ok":
         raise RuntimeError(f"calibration run {wf} failed ({summary.get('status')}): "
                            f"{summary.get('error')}")

@@ -56,3 +56,16 @@ def test_a_finished_run_is_reused_and_an_interrupted_one_goes_on(spec_el, tmp_pa
     assert other["status"] == "ok" and other["state_sha256"] != fresh["state_sha256"]
     assert json.loads((tmp_path / "cut" / "out" / "summary.json").read_text())[
         "state_sha256"] == other["state_sha256"]
+
+
+def test_an_interrupted_run_says_how_to_go_on(spec_el, tmp_path, monkeypatch):
+    import geodem.workflow as wfmod
+
+    real = wfmod.run_workflow
+    monkeypatch.setattr(wfmod, "run_workflow",
+                        lambda *a, **k: real(*a, stop_after_steps=300, **k))
+    spec, el = spec_el
+    with pytest.raises(C.RunInterrupted, match="with --resume goes on") as info:
+        C._run(C._tension_workflow(spec, el), tmp_path / "t", None)
+    assert info.value.code == 130
+    assert (tmp_path / "t" / "out" / "checkpoints").is_dir()

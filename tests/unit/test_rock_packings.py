@@ -75,3 +75,14 @@ def test_a_packing_without_a_confined_peak_leaves_phi_out_of_the_spread(tmp_path
 def test_bad_packing_options_are_refused(tmp_path, bad):
     res = CliRunner().invoke(app, ["rock", "sandstone", "-o", str(tmp_path / "x"), *bad])
     assert res.exit_code == 2, res.output
+
+
+def test_an_interrupted_check_exits_with_the_signal_and_says_resume(tmp_path, monkeypatch):
+    def stopped(*args, **kwargs):
+        raise C.RunInterrupted(130, "R/brazilian was interrupted; the same command with "
+                                    "--resume goes on from it")
+
+    monkeypatch.setattr(C, "rock_packings", stopped)
+    res = CliRunner().invoke(app, ["rock", "sandstone", "-o", str(tmp_path / "r")])
+    assert res.exit_code == 130
+    assert "interrupted" in res.output and "--resume" in res.output
