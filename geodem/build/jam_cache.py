@@ -6,8 +6,9 @@ box of 42,282 elements jammed whole takes tens of minutes). A calibration builds
 specimen for every iteration and test, and ``geodem rock`` the same discs on every check. The
 jam is deterministic: its result depends only on its inputs (radii, box, overlap, seed, start
 positions, periodic or not) and on the code that jams. Both are hashed into the file's name,
-so a hit returns the very bits a fresh jam would give (a changed input or a changed
-``isotropic.py`` misses), and results do not depend on whether the cache was used.
+so a hit returns the very bits a fresh jam would give (a changed input, a changed
+``isotropic.py``, another numba or another processor misses), and results do not depend on
+whether the cache was used.
 
 Files: ``$GEODEM_CACHE_DIR/packings/<sha256>.npz`` (:func:`geodem.machine.cache_root`), at
 most :data:`MAX_FILES` (the oldest used are removed). ``GEODEM_PACKING_CACHE=0`` turns the
@@ -15,6 +16,7 @@ cache off."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import inspect
 import os
@@ -54,12 +56,19 @@ def folder() -> Path:
     return cache_root() / "packings"
 
 
+@functools.lru_cache(maxsize=1)
 def _code_hash() -> str:
+    """The jamming code and what compiles it: isotropic.py's source, numba and numpy, and the
+    processor numba compiles for (its name and features: the machine code of the minimiser,
+    hence its last bits, may differ between processors)."""
+    import llvmlite.binding as ll
     import numba
 
     from geodem.build import isotropic
 
-    text = inspect.getsource(isotropic) + numba.__version__ + np.__version__ + platform.machine()
+    text = "\n".join([inspect.getsource(isotropic), numba.__version__, np.__version__,
+                      platform.machine(), ll.get_host_cpu_name(),
+                      ll.get_host_cpu_features().flatten()])
     return hashlib.sha256(text.encode()).hexdigest()
 
 
