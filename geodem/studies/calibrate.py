@@ -929,6 +929,9 @@ def measure(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
     return _measured(u, d, folder, tu + td)
 
 
+_MEASURE = measure  # the runs themselves (a test may put made-up responses in its place)
+
+
 def _measure_part(spec: CalibrationSpec, el: dict, folder: Path, part: str):
     """One run of :func:`measure`, ``part`` 'ucs' or 'tension', in ``folder/part``: its
     summary and wall time [s]."""
@@ -1005,7 +1008,7 @@ def over_packings(fn, spec: CalibrationSpec, el: dict, folder: Path) -> dict:
     calls = [(replace(spec, seed=spec.seed + k, packings=1), el,
               Path(folder) / f"packing_{spec.seed + k}") for k in range(spec.packings)]
     jobs = packing_jobs(spec)
-    if fn is measure and jobs > 1:
+    if fn is _MEASURE and jobs > 1:
         runs = _measure_side_by_side(calls, jobs)
     else:
         runs = _side_by_side(fn, calls, jobs)
