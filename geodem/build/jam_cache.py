@@ -95,7 +95,7 @@ def load(k: str):
             x, r = f["x"].copy(), f["r"].copy()
             info = {name[5:]: f[name].item() for name in f.files if name.startswith("info_")}
         os.utime(path)  # recently used: kept longest
-    except (OSError, ValueError, KeyError):
+    except Exception:  # noqa: BLE001 - absent, truncated, foreign: jam anew
         return None
     return x, r, info
 

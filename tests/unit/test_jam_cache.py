@@ -62,6 +62,9 @@ def test_the_cache_can_be_turned_off_and_a_broken_file_is_a_miss(cache, monkeypa
     x2, _, info = jam(_radii(), LO, HI, seed=5)
     assert info["cached"] is False and x2.tobytes() == x1.tobytes()
     assert jam(_radii(), LO, HI, seed=5)[2]["cached"] is True  # rewritten whole
+    path.write_bytes(path.read_bytes()[:200])  # a file cut short (a full disc, a crash)
+    x3, _, info = jam(_radii(), LO, HI, seed=5)
+    assert info["cached"] is False and x3.tobytes() == x1.tobytes()
 
 
 def test_the_cache_keeps_at_most_max_files(cache, monkeypatch):
