@@ -848,8 +848,8 @@ def _finished_run(wf: Path, out: Path, backend) -> dict | None:
 
 
 #: "1" (:func:`runs_told`, used by ``geodem calibrate`` and ``geodem rock``; processes
-#: started for the packings inherit it): every run of a calibration or check says on stderr when it starts
-#: and ends, so an hour-long 3-D check is not silent
+#: started for the packings inherit it): every run of a calibration or check says on stderr
+#: when it starts and ends, so an hour-long 3-D check is not silent
 RUN_PROGRESS_ENV = "GEODEM_CALIBRATION_PROGRESS"
 
 
