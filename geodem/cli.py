@@ -1055,6 +1055,8 @@ def rock_cmd(
     con = _out()
     con.print(f"measuring {mat.name} ({dim}-D, {structure}) -> {out}", highlight=False)
     folders = [o if packings == 1 else o / f"packing_{spec.seed}" for spec in specs]
+    if resume:
+        _refuse_another_check(o, mat.name, dim)
     with runs_told(), _interrupted_runs():
         runs = rock_packings(specs, el, folders, friction, jobs_for(packings, jobs))
     for spec, run in zip(specs, runs):
@@ -1088,6 +1090,21 @@ def rock_cmd(
             con.print(f"each packing's E, nu, Cu and Tu not stored: {miss}" if miss else
                       f"saved each packing's E, nu, Cu and Tu (their mean reproduces the "
                       f"record's) into {path}", highlight=False)
+
+
+def _refuse_another_check(o, name: str, dim: int) -> None:
+    """``geodem rock --resume -o DIR`` where DIR holds another rock's or dimension's check:
+    refused before anything runs (its runs would be overwritten)."""
+    for f in [o / "summary.json", *sorted(o.glob("packing_*/summary.json"))]:
+        try:
+            old = json.loads(f.read_text())
+        except (OSError, ValueError):
+            continue
+        meta = (old.get("inputs") or old) if isinstance(old, dict) else {}
+        if "material" in meta and (meta.get("material"), meta.get("dim")) != (name, dim):
+            _fail(f"{o} holds a check of {meta.get('material')} in {meta.get('dim')}-D ({f}); "
+                  f"--resume goes on only with the same rock and dimension: choose another -o",
+                  USER_ERROR)
 
 
 @contextlib.contextmanager

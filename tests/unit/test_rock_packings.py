@@ -86,3 +86,18 @@ def test_an_interrupted_check_exits_with_the_signal_and_says_resume(tmp_path, mo
     res = CliRunner().invoke(app, ["rock", "sandstone", "-o", str(tmp_path / "r")])
     assert res.exit_code == 130
     assert "interrupted" in res.output and "--resume" in res.output
+
+
+def test_resume_refuses_a_folder_of_another_rock_and_keeps_it(tmp_path, fake_runs):
+    out = tmp_path / "r"
+    assert CliRunner().invoke(app, ["rock", "sandstone", "-o", str(out), "--packings",
+                                    "2"]).exit_code == 0
+    before = (out / "packing_0" / "summary.json").read_text()
+    res = CliRunner().invoke(app, ["rock", "granite", "-o", str(out), "--packings", "2",
+                                   "--resume"])
+    assert res.exit_code == 2 and "holds a check of sandstone in 2-D" in res.output
+    assert (out / "packing_0" / "summary.json").read_text() == before
+    again = CliRunner().invoke(app, ["rock", "sandstone", "-o", str(out), "--packings", "2",
+                                     "--resume"])
+    assert again.exit_code == 0
+    assert " ".join(again.output.split()).count("(finished before, reused)") == 2
