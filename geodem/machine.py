@@ -2,8 +2,24 @@
 folder geodem keeps its caches in."""
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
+
+
+@contextlib.contextmanager
+def env_set(name: str, value: str):
+    """Within this block the environment variable ``name`` is ``value`` (for this process and
+    the processes it starts); afterwards it is what it was, or absent again."""
+    saved = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = saved
 
 
 def cache_root() -> Path:

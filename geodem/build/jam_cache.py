@@ -15,7 +15,6 @@ most :data:`MAX_FILES` (the oldest used are removed). ``GEODEM_PACKING_CACHE=0``
 cache off."""
 from __future__ import annotations
 
-import contextlib
 import functools
 import hashlib
 import inspect
@@ -35,19 +34,12 @@ def enabled() -> bool:
     return os.environ.get("GEODEM_PACKING_CACHE", "1").strip() not in ("0", "false", "no", "off")
 
 
-@contextlib.contextmanager
 def off():
-    """Within this block jams are neither read from nor written to the cache (a build that is
-    timed, e.g. ``geodem study scale``, must jam)."""
-    saved = os.environ.get("GEODEM_PACKING_CACHE")
-    os.environ["GEODEM_PACKING_CACHE"] = "0"
-    try:
-        yield
-    finally:
-        if saved is None:
-            os.environ.pop("GEODEM_PACKING_CACHE", None)
-        else:
-            os.environ["GEODEM_PACKING_CACHE"] = saved
+    """A block within which jams are neither read from nor written to the cache (a build that
+    is timed, e.g. ``geodem study scale``, must jam)."""
+    from geodem.machine import env_set
+
+    return env_set("GEODEM_PACKING_CACHE", "0")
 
 
 def folder() -> Path:

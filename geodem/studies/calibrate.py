@@ -60,7 +60,6 @@ as unreachable with the reason.
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import time
@@ -853,21 +852,12 @@ def _finished_run(wf: Path, out: Path, backend) -> dict | None:
 RUN_PROGRESS_ENV = "GEODEM_CALIBRATION_PROGRESS"
 
 
-@contextlib.contextmanager
 def runs_told():
-    """Within this block every run says on stderr when it starts and ends (:func:`_tell`),
+    """A block within which every run says on stderr when it starts and ends (:func:`_tell`),
     in this process and in the processes started for the packings."""
-    import os
+    from geodem.machine import env_set
 
-    saved = os.environ.get(RUN_PROGRESS_ENV)
-    os.environ[RUN_PROGRESS_ENV] = "1"
-    try:
-        yield
-    finally:
-        if saved is None:
-            os.environ.pop(RUN_PROGRESS_ENV, None)
-        else:
-            os.environ[RUN_PROGRESS_ENV] = saved
+    return env_set(RUN_PROGRESS_ENV, "1")
 
 
 def _tell(text: str) -> None:
@@ -1044,23 +1034,17 @@ def _side_by_side(fn, calls, jobs: int) -> list:
     ``jobs`` > 1 and ``fn`` is one of this module's measurements (a process imports it by
     name). Fresh ("spawn") processes: forking a process whose numba threads have started can
     hang them."""
-    import os
-
     if jobs <= 1 or getattr(fn, "__module__", None) != __name__ or "<" in fn.__qualname__:
         return [fn(*a) for a in calls]
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    saved = os.environ.get("NUMBA_NUM_THREADS")
-    os.environ["NUMBA_NUM_THREADS"] = "1"  # the children read it when they import numba
-    try:
-        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as ex:
-            return list(ex.map(_call, [(fn, a) for a in calls]))
-    finally:
-        if saved is None:
-            os.environ.pop("NUMBA_NUM_THREADS", None)
-        else:
-            os.environ["NUMBA_NUM_THREADS"] = saved
+    from geodem.machine import env_set
+
+    # the children read NUMBA_NUM_THREADS when they import numba
+    with env_set("NUMBA_NUM_THREADS", "1"), ProcessPoolExecutor(
+            jobs, mp_context=multiprocessing.get_context("spawn")) as ex:
+        return list(ex.map(_call, [(fn, a) for a in calls]))
 
 
 def rock_inputs(spec: CalibrationSpec, el: dict, friction: bool) -> dict:
