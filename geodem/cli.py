@@ -820,16 +820,18 @@ def calibrate_cmd(
         "--start", help="Start from the element parameters (kn_per_d, ks_per_d, xb_per_d, "
                         "fs0_per_d2, mu) of this YAML file: an earlier run's calibrated.yaml "
                         "or a material file with a --dim record (edit mu there to start the "
-                        "friction elsewhere); default: the prior rates.")] = None,
+                        "friction elsewhere); 'prior': the prior rates (lattice conversion); "
+                        "default: the step from the nearest calibrated library rock of the same "
+                        "recipe (never the rock's own record), else the prior rates.")] = None,
     backend: Annotated[Optional[str], typer.Option(
         "--backend", callback=_parse_backend, help="auto, numba, numpy or cupy.")] = None,
 ):
 
     from geodem.studies.calibrate import (CalibrationSpec, UnreachableTarget, calibrate,
-                                           runs_told,
-                                           check_reachable, library_friction_left_out,
-                                           library_recipe, library_turning_left_out,
-                                           save_calibration)
+                                          check_reachable, library_friction_left_out,
+                                          library_recipe, library_start,
+                                          library_turning_left_out, runs_told,
+                                          save_calibration)
     from geodem.materials_library import load_material, material_path
 
     if prefer not in ("Cu", "Tu"):
@@ -839,7 +841,7 @@ def calibrate_cmd(
     _check_fit(fit)
     mat = load_material(material)
     path = material_path(material)
-    first = _start_element(start, dim) if start else None
+    first = _start_element(start, dim) if start and start != "prior" else None
     from pathlib import Path
 
     o = Path(out) if resume else _fresh_out_dir(out, overwrite)
@@ -909,8 +911,15 @@ def calibrate_cmd(
                   f"Tu {m['Tu']:.4g} Pa ({e['Tu']:+.1%}){_phi_text(rec)}; "
                   f"{rec['wall_time_s']:.0f} s", highlight=False)
 
+    start_from = "given" if first else None
+    if start is None:
+        found = library_start(spec)
+        if found:
+            first, start_from = found[0], f"library {found[1]}"
+            con.print(f"starting from the library's {found[1]} ({dim}-D record, the nearest "
+                      "of the same recipe; --start prior for the prior rates)", highlight=False)
     with runs_told(), _interrupted_runs():
-        summary = calibrate(spec, o, progress=report, start=first)
+        summary = calibrate(spec, o, progress=report, start=first, start_from=start_from)
     b = summary["brazilian"]
     off = b["crack_start_offset"]
     con.print(f"check: Brazilian disc {b['tensile_strength']:.4g} Pa = {b['over_target']:.3g} x "

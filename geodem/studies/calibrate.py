@@ -73,7 +73,7 @@ from geodem import threads
 from geodem.materials import macro_to_micro, per_size
 
 __all__ = ["CalibrationSpec", "UnreachableTarget", "calibrate", "check_reachable",
-           "library_recipe", "library_turning_left_out",
+           "library_recipe", "library_start", "library_turning_left_out",
            "brazilian_check", "measure_friction", "friction_angle", "save_calibration",
            "save_brazilian_check",
            "calibration_block", "to_unknowns", "from_unknowns", "TOLERANCES"]
@@ -468,6 +468,96 @@ def prior_guess(spec: CalibrationSpec) -> dict:
     if spec.dim == 3:
         _charted_prior(spec, el)
     return el
+
+
+#: how far (in the target's shape: nu and ln(Cu / Tu)) a calibrated library rock may lie to be
+#: a calibration's start (:func:`library_start`): about one step of :func:`next_unknowns`
+#: (ks / kn 0.2 moves nu by ~0.1-0.2; rho_s x 3 moves Cu / Tu by a factor ~2)
+LIBRARY_START_REACH = {"nu": 0.1, "ratio": math.log(2.0)}
+#: what a library record must share with a calibration to start it: the specimens' recipe
+_SAME_SPECIMEN = ("d_mean", "fit", "strain_rate", "max_strain")
+
+
+def _same_recipe(spec: CalibrationSpec, specimen: dict) -> bool:
+    """Whether a stored record's ``specimen`` was measured as ``spec`` measures: the same
+    micro-structure, specimen size and loading (the number of packings may differ: it
+    averages, it does not move the response; so may the friction test: the contact friction
+    of the start is the prior's, :func:`library_start`)."""
+    from geodem.materials import STRUCTURE_KEYS
+
+    def close(a, b):
+        if a is None or b is None or isinstance(a, (str, bool)) or isinstance(b, (str, bool)):
+            return a == b
+        return math.isclose(float(a), float(b), rel_tol=1e-9)
+
+    if not all(close(specimen.get(k), getattr(spec, k)) for k in _SAME_SPECIMEN):
+        return False
+    if [float(x) for x in specimen.get("ucs_size") or ()] != [float(x) for x in spec.ucs_size]:
+        return False
+    turning = ("rotation", "rolling_friction", "bond_moment", "rolling_stiffness")
+    keys = [k for k in STRUCTURE_KEYS  # the rolling keys act only on turning elements
+            if k not in turning or specimen.get("rotation") or spec.structure.get("rotation")]
+    stored = {k: specimen.get(k) for k in keys if specimen.get(k) is not None}
+    wanted = {k: spec.structure.get(k) for k in keys if spec.structure.get(k) is not None}
+    return stored.keys() == wanted.keys() and all(close(stored[k], wanted[k]) for k in stored)
+
+
+def library_start(spec: CalibrationSpec, names: list[str] | None = None):
+    """The first iteration's element parameters from the nearest calibrated library rock.
+
+    A converged library record of ``spec.dim`` measured with the same recipe
+    (:func:`_same_recipe`) is one sample of the model's response: element parameters ``u_r``
+    and what they measured ``y_r = (ln E, nu, ln Tu, ln Cu)``. The nearest in the targets'
+    shape (nu, ln(Cu / Tu); within :data:`LIBRARY_START_REACH`) is moved to the prior's
+    contact friction ``mu_p`` (:func:`prior_guess`: the friction angle is matched by the
+    iterations; across the library's rocks phi(mu) is no one curve) along the prior's slope,
+    ``ln Cu += (d ln Cu / d ln mu) (ln mu_p - ln mu_r)``, and the start is the solver's step
+    from it to this rock's targets (:func:`next_unknowns`: the levels by the exact scalings,
+    the shape by the prior slopes). The rock's own record (same name) is never taken, so
+    calibrating a library rock again checks it rather than reading it back. Returns
+    ``(element, name)``, or None when no record qualifies (the start is then
+    :func:`prior_guess`)."""
+    from geodem.materials_library import list_materials, load_material
+
+    tg = {k: float(spec.targets[k]) for k in KEYS}
+    best = None
+    for name in names if names is not None else list_materials():
+        mat = load_material(name)
+        rec = (mat.calibrated or {}).get(f"{spec.dim}d")
+        if name == spec.name or mat.name == spec.name or not rec or not rec.get("converged"):
+            continue
+        meas = rec.get("measured") or {}
+        if not _same_recipe(spec, rec.get("specimen") or {}) or meas.get("nu") is None or any(
+                not (meas.get(k) or 0) > 0 for k in ("E", "Tu", "Cu")):
+            continue
+        gap = {"nu": abs(meas["nu"] - tg["nu"]),
+               "ratio": abs(math.log(meas["Cu"] / meas["Tu"]) - math.log(tg["Cu"] / tg["Tu"]))}
+        if any(gap[k] > LIBRARY_START_REACH[k] for k in gap):
+            continue
+        distance = sum((gap[k] / LIBRARY_START_REACH[k]) ** 2 for k in gap)
+        if best is None or distance < best[0]:
+            best = (distance, name, rec["element"], meas)
+    if best is None:
+        return None
+    _, name, element, meas = best
+    mu_p = prior_guess(spec)["mu"]
+    u_r = to_unknowns({k: float(element[k]) for k in
+                       ("kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2", "mu")})
+    y_r = _outputs({k: float(meas[k]) for k in KEYS})
+    d_ln_mu = math.log(mu_p) - u_r[4]
+    u_r[4] += d_ln_mu
+    y_r[3] += prior_table(spec.dim, spec.structure)["dlnCu_dlnmu"] * d_ln_mu
+    # the exact scalings to this rock's E and preferred strength first (next_unknowns moves
+    # the levels by at most a factor 3; a stiff clay is 30 times softer than a mudstone)
+    y_t = _outputs(tg)
+    k = 3 if spec.prefer == "Cu" else 2
+    a, b = y_t[0] - y_r[0], y_t[k] - y_r[k]
+    u_r[0] += a
+    y_r[0] += a
+    u_r[2] += b
+    y_r[2:4] += b
+    u, _ = next_unknowns([u_r], [y_r], y_t, spec.dim, spec.prefer, False, spec.structure)
+    return from_unknowns(u), name
 
 
 def _charted_prior(spec: CalibrationSpec, el: dict) -> None:
@@ -1129,7 +1219,7 @@ def _score(measured, targets, tol, reachable, keys=KEYS):
 
 
 def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None = None,
-              measure_fn=None, friction_fn=None) -> dict:
+              measure_fn=None, friction_fn=None, start_from: str | None = None) -> dict:
     """Calibrate (see module docstring); writes ``summary.json``, ``calibrated.yaml``
     (the material block), ``history.csv``, ``convergence.png``, ``iterations/NN/`` and
     ``brazilian/`` (the check of the result, summary key ``brazilian``) into ``out_dir``.
@@ -1139,7 +1229,9 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
     check and the reachable-region check are skipped, and so is the friction angle unless
     ``friction_fn`` is given too). Raises :class:`UnreachableTarget` before the first run
     when the targets lie outside the charted region and ``spec.check_reach`` is on. Returns
-    the summary."""
+    the summary. ``start``: the first iteration's element parameters (default
+    :func:`prior_guess`), ``start_from`` where they came from (summary key ``start``; e.g.
+    ``"library granite"`` for :func:`library_start`)."""
     if measure_fn is None and spec.check_reach:
         check_reachable(spec)  # before any folder is written
     synthetic = measure_fn is not None
@@ -1252,6 +1344,7 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         "threads": threads.numba_threads(),
         "jobs": packing_jobs(spec),
         "element": best["element"],
+        "start": start_from or ("given" if start else "prior table"),
         "reachable": reachable,
         "brazilian": brazilian,
         "friction_test": best.get("friction_test"),

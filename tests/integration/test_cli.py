@@ -325,3 +325,26 @@ def test_calibrate_starts_from_a_stored_record(tmp_path):
     first = json.loads((tmp_path / "c" / "summary.json").read_text())["history"][0]["element"]
     for key in ("kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2", "mu"):
         assert first[key] == pytest.approx(el[key], rel=1e-12)
+
+
+def test_calibrate_starts_from_the_nearest_library_rock_of_its_recipe(tmp_path, monkeypatch):
+    """``geodem calibrate marble`` (the stored 2-D recipe: turning elements, BETA 2) starts
+    from the step off the granite's record (the nearest other rock of that recipe), says so,
+    and ``--start prior`` takes the prior rates; the calibration itself is not run here."""
+    from geodem.studies import calibrate as C
+
+    seen = []
+
+    def capture(spec, out, progress=None, start=None, start_from=None, **kw):
+        seen.append((spec, start, start_from))
+        raise KeyboardInterrupt  # stop before any run
+
+    monkeypatch.setattr(C, "calibrate", capture)
+    res = invoke("calibrate", "marble", "-o", str(tmp_path / "c"))
+    assert "starting from the library's granite (2-D record" in flat(res.output)
+    spec, start, start_from = seen[-1]
+    assert start_from == "library granite"
+    assert start == C.library_start(spec)[0]
+    res = invoke("calibrate", "marble", "--start", "prior", "-o", str(tmp_path / "d"))
+    assert "starting from" not in flat(res.output)
+    assert seen[-1][1] is None and seen[-1][2] is None
