@@ -697,6 +697,37 @@ class Simulation:
             self.backend.push(("w_ext",))
         return delta
 
+    def set_fixed_velocity(self, moves) -> bool:
+        """Prescribe velocities of elements whose every degree of freedom is already fixed
+        (kinematic walls): ``moves`` is a list of ``(idx, v)``, ``v`` a (dim,) velocity [m/s].
+
+        The light form of ``change(fn, book_energy=False)`` for a servo that moves its walls
+        every few steps, with the same numbers: where a velocity changes, the fixed DOF's
+        stored reaction ``a = F_contact / m`` is recomputed as :meth:`change` recomputes it
+        (``(m a) / m``), nothing else is touched, and neither is the whole model validated
+        and sent to the backend again (on a CPU backend that was most of a servo update).
+        Returns False, changing nothing, when a DOF of some ``idx`` is free (or, with
+        rotation, turns or spins): :meth:`change` is then the way. ValueError for a velocity
+        that is not finite."""
+        st = self.state
+        names = ("free", "v", "a") + (("rfree", "w") if st.rotation else ())
+        self.backend.pull(names)
+        for idx, v in moves:
+            if (st.free[idx] != 0.0).any() or st.rotation and (
+                    (st.rfree[idx] != 0.0).any() or (st.w[idx] != 0.0).any()):
+                return False
+            if not np.isfinite(np.asarray(v, dtype=np.float64)).all():
+                raise ValueError(f"velocity {v!r}: allowed: finite numbers [m/s]")
+        for idx, v in moves:
+            new = np.broadcast_to(np.asarray(v, dtype=np.float64), st.v[idx].shape)
+            changed = st.v[idx] != new
+            m = st.m[idx][:, None]
+            a = st.a[idx]
+            st.a[idx] = np.where(changed, (m * a) / m, a)
+            st.v[idx] = new
+        self.backend.push(("v", "a"))
+        return True
+
     # ------------------------------------------------------------------ removing elements
     def _no_removals(self):
         #: original index (in the model as built) of each element; None: no element removed
