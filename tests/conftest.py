@@ -7,6 +7,14 @@ from geodem.build.lattice import bonded_state, fcc_lattice, lattice_shape, trian
 
 
 def pytest_configure(config):
+    # pytest -n N (pytest-xdist): N workers share the machine's cores, so each steps its models
+    # on its share of numba's threads (a run's numbers do not depend on the count; the tests
+    # that compare thread counts set theirs), as two busy threads per core cost more than one
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") or 1)
+    if workers > 1:
+        import numba
+
+        numba.set_num_threads(max(1, numba.config.NUMBA_NUM_THREADS // workers))
     # GEODEM_TEST_SEPARATE_MEMORY=1: every test's numba backend keeps its arrays apart from
     # the state, as the GPU does, and any unsynchronised access fails (tests/separate_memory.py)
     if os.environ.get("GEODEM_TEST_SEPARATE_MEMORY") == "1":
