@@ -911,7 +911,7 @@ def calibrate_cmd(
                   f"Tu {m['Tu']:.4g} Pa ({e['Tu']:+.1%}){_phi_text(rec)}; "
                   f"{rec['wall_time_s']:.0f} s", highlight=False)
 
-    start_from = "given" if first else None
+    start_from = None  # calibrate() names a given start and the prior's itself
     if start is None:
         found = library_start(spec)
         if found:

@@ -483,7 +483,7 @@ def _same_recipe(spec: CalibrationSpec, specimen: dict) -> bool:
     micro-structure, specimen size and loading (the number of packings may differ: it
     averages, it does not move the response; so may the friction test: the contact friction
     of the start is the prior's, :func:`library_start`)."""
-    from geodem.materials import STRUCTURE_KEYS
+    from geodem.materials import ROTATION_KEYS, STRUCTURE_KEYS
 
     def close(a, b):
         if a is None or b is None or isinstance(a, (str, bool)) or isinstance(b, (str, bool)):
@@ -494,9 +494,9 @@ def _same_recipe(spec: CalibrationSpec, specimen: dict) -> bool:
         return False
     if [float(x) for x in specimen.get("ucs_size") or ()] != [float(x) for x in spec.ucs_size]:
         return False
-    turning = ("rotation", "rolling_friction", "bond_moment", "rolling_stiffness")
     keys = [k for k in STRUCTURE_KEYS  # the rolling keys act only on turning elements
-            if k not in turning or specimen.get("rotation") or spec.structure.get("rotation")]
+            if k not in ROTATION_KEYS or specimen.get("rotation")
+            or spec.structure.get("rotation")]
     stored = {k: specimen.get(k) for k in keys if specimen.get(k) is not None}
     wanted = {k: spec.structure.get(k) for k in keys if spec.structure.get(k) is not None}
     return stored.keys() == wanted.keys() and all(close(stored[k], wanted[k]) for k in stored)
