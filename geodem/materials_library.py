@@ -261,7 +261,8 @@ def calibration_cells(row: dict) -> list[str]:
              f"{rec.get('best_iteration', rec['iterations'])} of {rec['iterations']} ({state})",
              f"{_g(m['E'] / 1e9)} GPa ({e['E']:+.1%})", f"{m['nu']:.3f} ({e['nu']:+.3f})",
              f"{_g(m['Cu'] / 1e6)} MPa ({e['Cu']:+.1%})", f"{_g(m['Tu'] / 1e6)} MPa ({e['Tu']:+.1%})",
-             phi_cell, f"{braz.get('over_target', float('nan')):.2f}{across}", when]
+             phi_cell, (f"{braz['over_target']:.2f}{across}" if braz else "not checked"),
+             when]
     return [c.replace("%)", " %)") for c in cells]
 
 

@@ -348,3 +348,6 @@ def test_calibrate_starts_from_the_nearest_library_rock_of_its_recipe(tmp_path, 
     res = invoke("calibrate", "marble", "--start", "prior", "-o", str(tmp_path / "d"))
     assert "starting from" not in flat(res.output)
     assert seen[-1][1] is None and seen[-1][2] is None
+    assert seen[-1][0].check  # the Brazilian check runs unless told
+    invoke("calibrate", "marble", "--no-check", "-o", str(tmp_path / "e"))
+    assert seen[-1][0].check is False

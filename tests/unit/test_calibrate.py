@@ -169,12 +169,37 @@ def test_the_brazilian_check_and_the_tensile_test_are_stored_with_the_calibratio
     assert out["specimen"]["tensile_test"] == "direct_tension"
     check = {"tensile_strength": 4.4e6, "over_target": 1.1, "crack_start_offset": 0.83,
              "stopped_by": "drop", "wall_time_s": 5.0}
-    block = C.calibration_block(dict(out, brazilian=check))["2d"]
-    assert 0.0 <= out["check_wall_time_s"] <= out["wall_time_s"]
-    assert block["run"]["check_wall_time_s"] == round(out["check_wall_time_s"], 1)
+    assert out["check_wall_time_s"] is None  # no check, no check time
+    block = C.calibration_block(dict(out, brazilian=check, check_wall_time_s=5.04))["2d"]
+    assert block["run"]["check_wall_time_s"] == 5.0
     assert block["brazilian"] == {"tensile_strength": 4.4e6, "over_target": 1.1,
                                   "crack_start_offset": 0.83}
-    assert "brazilian" not in C.calibration_block(out)["2d"]
+    unchecked = C.calibration_block(out)["2d"]
+    assert "brazilian" not in unchecked and "check_wall_time_s" not in unchecked["run"]
+
+
+@pytest.mark.parametrize("check", [True, False])
+def test_the_brazilian_check_runs_unless_switched_off(tmp_path, monkeypatch, check):
+    """``CalibrationSpec(check=False)`` (``geodem calibrate --no-check``) fits without the
+    disc: no check run, none stored; with the check on, the result's elements are checked."""
+    discs = []
+
+    def disc(spec, el, folder):
+        discs.append(dict(el))
+        return {"tensile_strength": 4.0e6, "over_target": 1.0, "crack_start_offset": 0.9,
+                "stopped_by": "drop", "wall_time_s": 1.0}
+
+    monkeypatch.setattr(C, "measure", synthetic)  # a run that is not the tests' synthetic one
+    monkeypatch.setattr(C, "brazilian_check", disc)
+    out = C.calibrate(C.CalibrationSpec(targets=TARGETS, name="synthetic", check=check,
+                                        check_reach=False), tmp_path)
+    assert out["converged"]
+    if check:
+        assert discs == [out["element"]] and out["brazilian"]["over_target"] == 1.0
+        assert out["check_wall_time_s"] is not None
+    else:
+        assert discs == [] and out["brazilian"] is None and out["check_wall_time_s"] is None
+        assert "brazilian" not in yaml.safe_load((tmp_path / "calibrated.yaml").read_text())["2d"]
 
 
 def test_noisy_measurements_do_not_derail_the_calibration(tmp_path):

@@ -180,3 +180,6 @@ def test_calibration_table_by_hand(tmp_path):
     text = calibration_markdown(2, [done])
     assert ("| turning (bond moment 100, rolling stiffness 2) | 3 of 4 (converged) |" in text)
     assert "| 36.2 deg (+1.2) | 1.10, 40 across |" in text
+    del rec["brazilian"]  # calibrated with --no-check
+    text = calibration_markdown(2, [_write(tmp_path, doc, "unchecked.yaml")])
+    assert "| 36.2 deg (+1.2) | not checked |" in text
