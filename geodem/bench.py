@@ -189,6 +189,12 @@ def _time_kernels(sim, max_steps: int, seconds: float = KERNEL_SECONDS):
     return s.n * k / wall, k
 
 
+def _field_updates(sim) -> int | None:
+    """Network updates of the simulation's coupled fields so far (``remeshes``), or None."""
+    counts = [f.remeshes for f in getattr(sim, "fields", ()) if hasattr(f, "remeshes")]
+    return int(sum(counts)) if counts else None
+
+
 def bench_one(state, backend: str, steps: int | None = None, copy: bool = True,
               fields=()) -> dict:
     """Time ``Simulation.run`` of ``state`` on ``backend``; one record.
@@ -233,11 +239,13 @@ def bench_one(state, backend: str, steps: int | None = None, copy: bool = True,
         per_step = max((time.perf_counter() - t0) / k, 1e-9)
         steps = max(MIN_STEPS, int(math.ceil(TARGET_SECONDS / per_step)))
     rebuilds0 = getattr(sim, "rebuilds", None)
+    updates0 = _field_updates(sim)
     t0 = time.perf_counter()
     sim.run(steps)
     _device_sync(sim)
     wall = time.perf_counter() - t0
     rebuilds = None if rebuilds0 is None else int(sim.rebuilds - rebuilds0)
+    updates = None if updates0 is None else _field_updates(sim) - updates0
     broken = int(sim.crack_log().size)
     kernel_rate, kernel_steps = _time_kernels(sim, max_steps=steps)
     rec = {
@@ -257,6 +265,9 @@ def bench_one(state, backend: str, steps: int | None = None, copy: bool = True,
         "bonds_broken": broken,
         "warmup_s": warm,
         "field_attach_s": attach,
+        # network updates of the coupled fields in the timed steps (the pore field's
+        # re-triangulations), None without such a field
+        "field_network_updates": updates,
     }
     del sim, st
     gc.collect()

@@ -10,11 +10,12 @@ from geodem.cli import app
 def test_scale_study_on_tiny_models(tmp_path):
     out = tmp_path / "scale"
     res = CliRunner().invoke(app, ["study", "scale", "-o", str(out), "--sizes", "300,900",
-                                   "--families", "lattice,granular,isotropic,thermal,pore"])
+                                   "--families",
+                                   "lattice,granular,isotropic,thermal,pore,pore_isotropic"])
     assert res.exit_code == 0, res.output
     r = json.loads((out / "scale.json").read_text())
-    assert {p["family"] for p in r["points"]} == {"lattice", "granular", "isotropic", "thermal",
-                                                  "pore"}
+    families = {"lattice", "granular", "isotropic", "thermal", "pore", "pore_isotropic"}
+    assert {p["family"] for p in r["points"]} == families
     for p in r["points"]:
         assert 0.5 * p["n_requested"] <= p["n"] <= 1.5 * p["n_requested"]
         # the state alone is ~870 B per element at ~12 contacts (docs/performance.md)
@@ -24,10 +25,15 @@ def test_scale_study_on_tiny_models(tmp_path):
     lattice = [p for p in r["points"] if p["family"] == "lattice"]
     granular = [p for p in r["points"] if p["family"] == "granular"]
     assert [p["n"] for p in lattice] == [p["n"] for p in granular]  # the same block, cut
-    assert set(r["growth"]) == {"lattice", "granular", "isotropic", "thermal", "pore"}
+    assert set(r["growth"]) == families
     for p in r["points"]:  # a field's set-up counts in the build, and its steps are timed
-        if p["family"] in ("thermal", "pore"):
+        if p["family"] in ("thermal", "pore", "pore_isotropic"):
             assert 0.0 <= p["field_attach_s"] <= p["build_s"] and p["steps"] == 20
+        # the pore field counts its network updates; the thermal field has no network
+        assert (p.get("field_network_updates") is not None) == p["family"].startswith("pore")
+    iso = [p for p in r["points"] if p["family"] == "isotropic"]
+    assert [p["n"] for p in iso] == [p["n"] for p in r["points"]
+                                     if p["family"] == "pore_isotropic"]  # the same packing
     assert (out / "scale.png").stat().st_size > 1000
     assert len((out / "scale.csv").read_text().splitlines()) == 1 + len(r["points"])
 
@@ -36,4 +42,5 @@ def test_unknown_family_exits_2(tmp_path):
     res = CliRunner().invoke(app, ["study", "scale", "-o", str(tmp_path / "s"),
                                    "--families", "lattice,foam"])
     assert res.exit_code == 2
-    assert "foam unknown; allowed: lattice, isotropic, granular, thermal, pore" in res.output
+    assert ("foam unknown; allowed: lattice, isotropic, granular, thermal, pore, "
+            "pore_isotropic") in res.output
