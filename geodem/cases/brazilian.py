@@ -69,7 +69,8 @@ import numpy as np
 
 from geodem.cases.common import PlatenTest, append_csv, needs_model, read_rows, write_csv
 from geodem.measure import contact_stress  # noqa: F401 - written in geodem.measure, used here
-from geodem.workflow.material import SpecimenMaterial, material_problems, specimen_material
+from geodem.workflow.material import (SpecimenMaterial, disc_warnings, material_problems,
+                                      specimen_material)
 from geodem.workflow.models import BuildError, BuiltModel, state_bytes_per_element
 from geodem.workflow.schema import (
     F,
@@ -340,7 +341,8 @@ class BrazilianDisc(ModelBase):
             raise BuildError(("diameter",), f"building the disc failed: {exc}") from None
         info = {"diameter": self.d_mean, "disc_diameter": self.diameter, "thickness": t,
                 "centre": centre, "material": sm.label,
-                "material_warnings": list(sm.warnings) + packing_notes(rep),
+                "material_warnings": list(sm.warnings) + packing_notes(rep)
+                + disc_warnings(sm, self.n_across()),
                 "specimen_report": {k: v for k, v in rep.items() if k != "packing"}}
         return BuiltModel(st, st.x.copy(), self.n_across(), info)
 

@@ -19,9 +19,12 @@ class SpecimenMaterial:
     :func:`geodem.materials.per_size` keys); ``label`` says which, ``warnings`` what was
     clamped."""
 
-    def __init__(self, rho, macro=None, element=None, label="", warnings=()):
+    def __init__(self, rho, macro=None, element=None, label="", warnings=(), name=None,
+                 record=None):
         self.rho, self.macro, self.element = float(rho), macro, element
         self.label, self.warnings = label, tuple(warnings)
+        # a library material: its name and the calibration record it was taken from
+        self.name, self.record = name, record
 
     @property
     def material(self) -> dict:
@@ -82,7 +85,8 @@ def specimen_material(cfg, name: str, dim: int, d_mean: float | None = None) -> 
         if cal is not None:
             return SpecimenMaterial(lib.values()["rho"], element=dict(cal["element"]),
                                     label=f"{lib.name}: calibrated ({dim}-D)",
-                                    warnings=resolution_warnings(lib.name, cal, d_mean, dim))
+                                    warnings=resolution_warnings(lib.name, cal, d_mean, dim),
+                                    name=lib.name, record=cal)
         if m.use != "lattice":
             # no silent fallback: the lattice conversion is another rock (a 3-D sandstone on it
             # gave E 1.6 GPa for 15, nu 1.1), so it is taken only when asked for
@@ -125,6 +129,40 @@ def resolution_warnings(name: str, cal: dict, d_mean: float | None, dim: int) ->
             f"docs/calibration.md 'Resolution transfer'); for calibrated strengths calibrate at "
             f"this size: geodem calibrate {name} --dim {dim} --d-mean {float(d_mean):g} "
             f"-o DIR"]
+
+
+#: a Brazilian check within this fraction of Tu is the rock's tensile strength (issue 22's
+#: consistency target: Brazilian and direct tension within 15 %)
+BRAZILIAN_AGREES = 0.15
+
+
+def disc_warnings(sm: SpecimenMaterial, n_across: float) -> list:
+    """A warning for a Brazilian disc of a calibrated library material whose record's
+    Brazilian check (``brazilian.over_target`` on discs ``specimen.disc_diameter / d_mean``
+    across) says the disc will not read the rock's tensile strength: the disc is coarser than
+    the checked one (a coarse disc is crushed under its platens before it splits and reads
+    higher), or the check itself, on discs of this size, read more than
+    :data:`BRAZILIAN_AGREES` off Tu. A finer disc is not warned about."""
+    rec = sm.record or {}
+    check, spec = rec.get("brazilian") or {}, rec.get("specimen") or {}
+    ratio, disc, d = check.get("over_target"), spec.get("disc_diameter"), spec.get("d_mean")
+    if ratio is None or not disc or not d:
+        return []
+    checked = float(disc) / float(d)
+    coarser = n_across < (1.0 - SAME_RESOLUTION) * checked
+    same = abs(n_across / checked - 1.0) <= SAME_RESOLUTION
+    if not (coarser or (same and abs(float(ratio) - 1.0) > BRAZILIAN_AGREES)):
+        return []
+    text = (f"{sm.name}: the calibration's Brazilian check split discs {checked:.0f} d_mean "
+            f"across at {float(ratio):.2f} x its direct-tension strength Tu; this disc is "
+            f"{n_across:.0f} across")
+    if coarser:
+        text += (", coarser: expect it to read higher (a coarse disc is crushed under its "
+                 "platens before it splits")
+    else:
+        text += (": expect about the same ratio (the Brazilian strength is Tu only on discs "
+                 "fine enough")
+    return [text + "; docs/calibration.md, 'Friction angle in 3-D' and 'Rolling stiffness')"]
 
 
 class MaterialRolling(NamedTuple):

@@ -275,3 +275,16 @@ def test_steps_need_their_models(tmp_path):
     assert "'bottom' and 'top'" in msg, msg
     msg = _prepare(tmp_path, DISC, [{"kind": "brazilian", "loading_rate": 0}])
     assert "steps[0].loading_rate" in msg, msg
+
+
+def test_a_disc_coarser_than_the_calibrations_check_says_so():
+    """The library stiff clay's 2-D record checks its Brazilian strength on discs 120 across
+    (0.94 x Tu); the shipped 40-across disc of it is warned about, the sandstone's (checked on
+    the shipped disc, 40 across, 0.99 x) is not."""
+    shipped = ROOT / "workflows" / "brazilian.yaml"
+    clay = prepare(shipped, ["materials.rock={library: stiff_clay}"]).built.info
+    (w,) = [w for w in clay["material_warnings"] if "Brazilian check" in w]
+    assert "stiff_clay: the calibration's Brazilian check split discs 120 d_mean across" in w
+    assert "this disc is 40 across, coarser" in w
+    sand = prepare(shipped).built.info
+    assert not any("Brazilian check" in w for w in sand["material_warnings"])
