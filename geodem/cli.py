@@ -822,7 +822,8 @@ def calibrate_cmd(
                         "or a material file with a --dim record (edit mu there to start the "
                         "friction elsewhere); 'prior': the prior rates (lattice conversion); "
                         "default: the step from the nearest calibrated library rock of the same "
-                        "recipe (never the rock's own record), else the prior rates.")] = None,
+                        "recipe (never the rock's own record), else (and for 3-D turning "
+                        "elements) the prior rates.")] = None,
     check: Annotated[bool, typer.Option(
         "--check/--no-check", help="Run the Brazilian check on the result (default); "
                                    "--no-check leaves it to 'geodem rock MATERIAL --dim D "

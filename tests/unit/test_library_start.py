@@ -20,10 +20,10 @@ def spec(name="new_rock", **kw):
                              name=name, **{k: v for k, v in kw.items() if k not in TARGETS})
 
 
-def record_file(tmp_path, name, element, measured, **specimen):
-    """A material file named ``name`` with a converged 2-D record: ``element`` measured
+def record_file(tmp_path, name, element, measured, dim=2, **specimen):
+    """A material file named ``name`` with a converged ``dim``-D record: ``element`` measured
     ``measured`` on the default calibration specimen (``specimen`` overrides its keys)."""
-    s = spec()
+    s = spec() if dim == 2 else spec(**SPEC_3D)
     block = {"element": dict(element, packing="isotropic"), "measured": measured,
              "converged": True,
              "specimen": dict({"d_mean": s.d_mean, "ucs_size": list(s.ucs_size),
@@ -33,10 +33,15 @@ def record_file(tmp_path, name, element, measured, **specimen):
     doc = yaml.safe_load(material_path("sandstone").read_text())  # its sources
     for k, v in TARGETS.items():
         doc["properties"][k]["value"] = float(v)
-    doc.update(name=name, calibrated={"2d": block})
+    doc.update(name=name, calibrated={f"{dim}d": block})
     path = tmp_path / f"{name}.yaml"
     path.write_text(yaml.safe_dump(doc))
     return str(path)
+
+
+SPEC_3D = {"dim": 3, "d_mean": 0.01, "ucs_size": (0.1, 0.1, 0.2)}
+TURNING = {"rotation": True, "bond_moment": 100.0, "rolling_friction": 0.0,
+           "rolling_stiffness": 8.0}
 
 
 def element_at(u):
@@ -97,3 +102,24 @@ def test_a_start_from_a_neighbouring_rock_converges_sooner(tmp_path):
     assert from_prior["converged"] and from_a["converged"]
     assert from_a["iterations"] < from_prior["iterations"]
     assert from_a["start"] == "library rock_a" and from_prior["start"] == "prior table"
+
+
+def test_3d_turning_elements_start_from_the_prior():
+    """3-D turning elements start from the prior rates (measured on the library's 3-D
+    turning records), even with a record of their recipe at hand: the 3-D sandstone from the
+    granite's record did not converge in six iterations. 3-D translating ones take theirs."""
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = element_at([math.log(3e11), 0.4, math.log(2e7), math.log(6.0), math.log(0.3)])
+        at_target = {k: TARGETS[k] for k in C.KEYS}
+        turning = record_file(Path(tmp), "turning3", dict(rec, **TURNING), at_target, dim=3,
+                              **TURNING)
+        translating = record_file(Path(tmp), "translating3", rec, at_target, dim=3)
+        s3 = spec(**SPEC_3D, structure={"packing": "isotropic", **TURNING})
+        stored = yaml.safe_load(Path(turning).read_text())["calibrated"]["3d"]["specimen"]
+        assert C._same_recipe(s3, stored)  # the record is of its recipe ...
+        assert C.library_start(s3, names=[turning]) is None  # ... and not taken
+        plain = spec(**SPEC_3D)
+        assert C.library_start(plain, names=[translating])[1] == translating
