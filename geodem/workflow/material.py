@@ -131,8 +131,9 @@ def resolution_warnings(name: str, cal: dict, d_mean: float | None, dim: int) ->
             f"-o DIR"]
 
 
-#: a Brazilian check within this fraction of Tu is the rock's tensile strength (issue 22's
-#: consistency target: Brazilian and direct tension within 15 %)
+#: a Brazilian check within this fraction of Tu reads the rock's tensile strength (the
+#: consistency tests/integration/test_one_rock.py asserts: Brazilian and direct tension
+#: within 15 %)
 BRAZILIAN_AGREES = 0.15
 
 
