@@ -141,12 +141,18 @@ PRIOR = {
 #: 24.7 deg at mu 0.05 (the translating sandstone's elements turning, ``geodem rock FILE --dim
 #: 3 --friction --bond-moment 100 --rolling-stiffness 8``) and 36.6 at 0.245 (the turning
 #: sandstone's first iteration, three packings); on the stiff clay's soft springs 31.7 deg at
-#: mu 0.05 (its lowest angle; docs/calibration.md "Friction angle in 3-D").
+#: mu 0.05 (its lowest angle; docs/calibration.md "Friction angle in 3-D"). The partial slopes
+#: of the angle and of Cu at BETA 8 (the sandstone calibrated from the prior, iteration 3: ks /
+#: kn 0.310, rho_s 9.96, mu 0.158, packing 0, 37.6 deg and its sigma_3 = 0 peak 78.7 MPa), fs0
+#: x 0.75 / x 1.33: 31.8 / 42.4 deg, 63.4 / 92.6 MPa; mu x 0.67 / x 1.5: 33.6 / 39.6 deg,
+#: 76.8 / 80.4 MPa: d phi / d ln rho_s 18.5, d phi / d ln mu 7.4, d ln Cu / d ln mu 0.06
+#: (:func:`_phi_plane`).
 PRIOR_ROTATION = {
     2: {"E": 2.75, "Tu": 4.6, "Cu": 12.8, "s_of_nu": (0.65, 0.20, -0.7), "dnu_ds": -0.7,
         "phi_of_mu": ((0.15, 35.4), (0.35, 39.9)), "dlnCu_dlnmu": 0.15},
     3: {"E": 2.3, "Tu": 5.0, "Cu": 7.3, "s_of_nu": (0.343, 0.186, -0.51), "dnu_ds": -0.51,
-        "phi_of_mu": ((0.05, 24.7), (0.245, 36.6)), "dlnCu_dlnmu": 0.4},
+        "phi_of_mu": ((0.05, 24.7), (0.245, 36.6)), "dlnCu_dlnmu": 0.06,
+        "dphi_dlnrho": 18.5, "dphi_dlnmu": 7.4},
 }
 #: 3-D turning elements: the entries that differ with the rolling stiffness BETA (the nearest
 #: measured BETA in ln BETA is taken). BETA 8: :data:`PRIOR_ROTATION` above. BETA 4 (the
@@ -590,7 +596,10 @@ def _charted_prior(spec: CalibrationSpec, el: dict) -> None:
 
 #: slope ranges of the four response functions (physical signs; measured on random packings)
 SLOPES = {"nu_s": (-1.2, -0.2), "lnE_s": (-1.0, 3.0), "ratio_rho": (0.05, 1.5),
-          "strength_rho": (-0.2, 1.5), "phi_lnmu": (5.0, 200.0)}
+          "strength_rho": (-0.2, 1.5), "phi_lnmu": (5.0, 200.0),
+          # 3-D turning elements (:func:`_phi_plane`): both partial slopes positive (more
+          # bond shear strength or more contact friction, a larger angle)
+          "phi_lnrho": (0.0, 60.0), "phi_lnmu_at_rho": (2.0, 40.0)}
 #: smallest spread of ln rho_s over which a saturated strength ratio is believed: measurements
 #: repeat to ~1e-3 (nu) and ~1 % (strengths) between packings of neighbouring parameters
 MIN_SECANT_STEP = 0.05
@@ -630,15 +639,15 @@ def _phi_stuck(phi, target, tol=TOLERANCES["phi"]) -> bool:
 RIDGE = 0.05
 
 
-def local_plane(X, y, prior, weights):
+def local_plane(X, y, prior, weights, scale=None):
     """Plane ``y = y_last + g . (x - x_last)`` through the latest sample of ``X`` (rows: the
     first ``X.shape[1]`` shape variables) and ``y``, its slopes ``g`` fitted by weighted least
     squares over the other samples with a ridge pulling them toward ``prior`` (:data:`RIDGE`,
-    in units of :data:`SHAPE_SCALE`). Returns ``(y_last, g)``. (The plane goes through the
+    in units of :data:`SHAPE_SCALE`, or of ``scale``). Returns ``(y_last, g)``. (The plane goes through the
     latest measurement: a free intercept let a far, curved sample hold the model's value 0.04
     off the measured nu, and the next steps shrank to 0.008 in ks / kn.)"""
     X = np.asarray(X, float)
-    scale = np.asarray(SHAPE_SCALE[:X.shape[1]])
+    scale = np.asarray(SHAPE_SCALE[:X.shape[1]] if scale is None else scale, float)
     X = X / scale
     y = np.asarray(y, float)
     g0 = np.asarray(prior, float) * scale
@@ -692,6 +701,26 @@ def _phi_line(ln_mu, phi, target, prior_slope):
     g = (float(d @ (y - y[-1])) + RIDGE * g0) / (float(d @ d) + RIDGE)
     g = float(np.clip(g / SHAPE_SCALE[2], *SLOPES["phi_lnmu"]))
     return float(y[-1] + g * (ln_mu[-1] - x[-1])), g
+
+
+def _phi_plane(X, phi, prior):
+    """phi of 3-D turning elements as a plane in ``(ln rho_s, ln mu)`` (``X`` rows: ks / kn,
+    ln rho_s, ln mu) through the latest sample where it was measured (:func:`local_plane`,
+    slopes pulled toward ``prior = (d phi / d ln rho_s, d phi / d ln mu)`` and clipped to
+    ``SLOPES["phi_lnrho"]`` and ``SLOPES["phi_lnmu_at_rho"]``). On these elements the angle
+    follows the bonds' shear strength more than the contacts' friction (the sandstone at
+    rolling stiffness 8, one packing: 20 deg per unit of ln rho_s, 5 per unit of ln mu;
+    :data:`PRIOR_ROTATION`), and rho_s is held by Cu / Tu: a line in ln mu alone read the
+    angle's rise with rho_s as a fall with mu and lowered mu for ever. Returns ``(phi at the
+    latest sample's ln rho_s and ln mu, (slope in ln rho_s, slope in ln mu))`` or ``None``."""
+    ok = np.isfinite(phi)
+    if not ok.any():
+        return None
+    xp, y = X[ok][:, 1:3], phi[ok]
+    scale = SHAPE_SCALE[1:3]
+    y0, g = local_plane(xp, y, prior, _weights(xp, scale), scale=scale)
+    g = np.array([np.clip(g[0], *SLOPES["phi_lnrho"]), np.clip(g[1], *SLOPES["phi_lnmu_at_rho"])])
+    return float(y0 + g @ (X[-1, 1:3] - xp[-1])), g
 
 
 #: a friction angle is out of reach once a contact friction this much (ratio) above the
@@ -773,7 +802,8 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=Fal
     weighted least squares over every sample, weights ``exp(-|x_i - x_last|^2 / 2)`` in units
     of :data:`SHAPE_SCALE`, slopes pulled toward the prior's), phi by a line in ln mu
     (:func:`_phi_line`: it is measured near the manifold where the other four are met, on
-    which mu is the one free variable). ``x`` solves the linear system
+    which mu is the one free variable), or for 3-D turning elements by a plane in ln rho_s
+    and ln mu (:func:`_phi_plane`: their angle follows the bonds' shear strength). ``x`` solves the linear system
     ``nu(x) = nu_t``, ``(f_C - f_T)(x) = ln(Cu_t / Tu_t)`` and, with ``friction`` and a
     measured phi, ``phi(x) = phi_t`` (nu depends on rho_s too: pre-peak cracking of a
     strong-shear, weak-tension rock widens it; Cu on mu), within one step of the latest
@@ -809,10 +839,17 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=Fal
         model = friction_model(3, structure)
         if model is not None:
             phi_slope = model.slope(float(X[-1, 0]))
-    phi = _phi_line(X[:, 2], Y[:, 4], y_target[4], phi_slope) if friction else None
-    if phi is not None:  # phi depends on mu alone on the manifold: a triangular system
-        rows.append(np.array([0.0, 0.0, phi[1]]))
-        rhs.append(y_target[4] - phi[0])
+    turning_3d = dim == 3 and bool(structure and structure.get("rotation"))
+    if friction and turning_3d:  # phi follows rho_s as well as mu: a coupled system
+        phi = _phi_plane(X, Y[:, 4], (p["dphi_dlnrho"], p["dphi_dlnmu"]))
+        if phi is not None:
+            rows.append(np.array([0.0, phi[1][0], phi[1][1]]))
+            rhs.append(y_target[4] - phi[0])
+    else:
+        phi = _phi_line(X[:, 2], Y[:, 4], y_target[4], phi_slope) if friction else None
+        if phi is not None:  # phi depends on mu alone on the manifold: a triangular system
+            rows.append(np.array([0.0, 0.0, phi[1]]))
+            rhs.append(y_target[4] - phi[0])
     n = len(rows)
     J = np.array(rows)[:, :n]
     x_new = X[-1].copy()

@@ -595,3 +595,51 @@ def test_a_finished_packing_is_reused_only_with_the_same_inputs(tmp_path, monkey
     C.measure_rock(C.CalibrationSpec(targets=TARGETS, name="synthetic"), el, tmp_path / "p0",
                    False)  # without resume: always runs
     assert calls == ["measure", "disc"] * 4
+
+
+def turning_3d(spec_, el, folder):
+    """A made-up 3-D turning packing: Cu rises with the bonds' shear strength and hardly with
+    the contact friction (d ln Cu / d ln mu 0.06, as measured at rolling stiffness 8)."""
+    m = synthetic(spec_, el, folder)
+    return dict(m, Cu=m["Cu"] * (el["mu"] / 0.158) ** 0.06)
+
+
+def turning_3d_triaxial(spec_, el, folder):
+    """Its triaxial: the angle follows rho_s (18.5 deg per unit of ln rho_s) more than mu (7.4
+    per unit of ln mu), the partial slopes measured on the 3-D sandstone's elements."""
+    rho = el["fs0_per_d2"] / (el["kn_per_d"] * el["xb_per_d"])
+    phi = 37.6 + 18.5 * math.log(rho / 9.96) + 7.4 * math.log(el["mu"] / 0.158)
+    return {"phi": phi, "peak_0": 1.0, "peak_c": 2.0, "sigma3": 0.1, "wall_time_s": 0.0}
+
+
+def test_a_3d_turning_rock_holds_its_angle_by_mu_while_rho_s_holds_cu_over_tu(tmp_path):
+    """With the angle a plane in (ln rho_s, ln mu), raising rho_s for Cu / Tu is seen to raise
+    the angle, and mu falls to bring it back; a line in ln mu alone read that rise as a fall
+    with mu (the 3-D sandstone from the prior rates: 36.5, 38.9, 38.6 deg as mu fell)."""
+    rot8 = {"packing": "isotropic", "rotation": True, "bond_moment": 100.0,
+            "rolling_friction": 0.0, "rolling_stiffness": 8.0}
+    sp = C.CalibrationSpec(targets=dict(TARGETS, mu_i=math.tan(math.radians(35.0))),
+                           name="synthetic", dim=3, d_mean=0.01, ucs_size=(0.1, 0.1, 0.2),
+                           structure=rot8, friction=True)
+    out = C.calibrate(sp, tmp_path, measure_fn=turning_3d, friction_fn=turning_3d_triaxial)
+    assert out["converged"] and out["iterations"] <= 8
+    assert abs(turning_3d_triaxial(None, out["element"], None)["phi"] - 35.0) <= 2.0
+    for k in ("E", "Cu", "Tu"):
+        assert abs(out["rel_errors"][k]) <= 0.05
+    assert abs(out["abs_errors"]["nu"]) <= 0.03
+
+
+def test_the_3d_turning_angle_plane_reads_both_slopes():
+    # three samples of phi = 30 + 18 ln rho_s + 6 ln mu: the plane through the latest one
+    # recovers both slopes (the ridge toward the prior moves them little)
+    X = np.array([[0.3, math.log(8.0), math.log(0.2)], [0.3, math.log(10.0), math.log(0.2)],
+                  [0.3, math.log(10.0), math.log(0.15)]])
+    phi = 30.0 + 18.0 * X[:, 1] + 6.0 * X[:, 2]
+    value, (g_rho, g_mu) = C._phi_plane(X, phi, (18.5, 7.4))
+    assert value == pytest.approx(phi[-1])
+    assert g_rho == pytest.approx(18.0, abs=0.5) and g_mu == pytest.approx(6.0, abs=0.5)
+    # a noisy reading that would make the angle fall with more friction is clipped
+    phi_bad = phi.copy()
+    phi_bad[-1] += 3.0  # lower mu, higher angle
+    assert C._phi_plane(X, phi_bad, (18.5, 7.4))[1][1] == C.SLOPES["phi_lnmu_at_rho"][0]
+    assert C._phi_plane(X, np.full(3, np.nan), (18.5, 7.4)) is None
