@@ -271,6 +271,14 @@ def packing_notes(report) -> list[str]:
         return []
     from geodem.build.isotropic import TILE_ABOVE
 
+    if "slab_axis" in prep:
+        side = min(w for a, w in enumerate(prep["tile_size"]) if a != prep["slab_axis"])
+        return [f"the random packing's {prep['n']:,} elements are a slab cell of "
+                f"{prep['tile_elements']:,} repeated {' x '.join(map(str, prep['tiles']))} "
+                f"(more than {TILE_ABOVE:,} elements): periodic across axis "
+                f"{prep['slab_axis']} with flat faces along it, as jammed whole; the "
+                f"micro-structure repeats every {side:.3g} m across (docs/brazilian.md, "
+                "'Large 3-D discs')"]
     return [f"the random packing's {prep['n']:,} elements are a periodic cell of "
             f"{prep['tile_elements']:,} repeated {' x '.join(map(str, prep['tiles']))} (a box "
             f"of more than {TILE_ABOVE:,} elements: docs/performance.md, 'Cost against "
@@ -315,7 +323,8 @@ def packing_recipe(element, dim: int) -> str:
 
 
 def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material=None, dim=3,
-                  seed=0, gap=None, backend=None, tol=1e-3, element=None, tile=None):
+                  seed=0, gap=None, backend=None, tol=1e-3, element=None, tile=None,
+                  slab_axis=None):
     """Pack, cut and cement a specimen. ``material``: rock properties (``E, nu, Tu, Cu, mu_i,
     rho``) converted by ``macro_to_micro`` at ``d_mean``; or, with ``element`` (size-free
     element parameters, :func:`geodem.materials.per_size` keys, e.g. calibrated ones), only
@@ -323,7 +332,8 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
     :func:`cement` keys plus ``packing`` (deposition/compaction summaries) and ``volume``
     (shape volume, area in 2-D) and ``shape_packing_fraction`` (element volume / shape volume).
     ``tile``: an isotropic packing's tiling (:func:`geodem.build.isotropic.isotropic_packing`;
-    None: above ``TILE_ABOVE`` elements, False: never)."""
+    None: above ``TILE_ABOVE`` elements, False: never); ``slab_axis``: above ``TILE_ABOVE``
+    elements a slab with flat faces along that axis instead (a 3-D disc's faces)."""
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
     mat = dict(DEFAULT_MATERIAL if material is None else material)
@@ -332,7 +342,7 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
     if recipe == "isotropic":
         return isotropic_specimen(shp, d_mean, distri_rate,
                                   specimen_params(mat, element, d_mean), mat["rho"], seed=seed,
-                                  backend=backend, tol=tol, tile=tile)
+                                  backend=backend, tol=tol, tile=tile, slab_axis=slab_axis)
     blo, bhi = shp.bounds
     ext = bhi - blo
     margin = 1.5 * d_mean
