@@ -607,51 +607,12 @@ def slab_packing(size, d_mean, distri_rate, axis, cells, n_cell, *, seed=0,
     every cell side across; the box's faces across ``axis`` cut the cells (an element left
     without a bond there is dropped). Returns ``(x, r, report)`` as :func:`tiled_packing`,
     with ``slab_axis`` and the face contacts."""
-    from geodem.build import packing
-
-    t0 = time.perf_counter()
-    size = np.asarray(size, float)
     cells = np.asarray(cells, np.int64)
-    dim = size.size
     if cells[axis] != 1:
         raise ValueError(f"a slab has one cell along its axis {axis}, got {cells.tolist()}")
-    rng = np.random.default_rng(seed)
-    r0 = packing.radii(int(n_cell), d_mean, distri_rate, rng) / d_mean
-    cell = size / d_mean / cells
-    flags = tuple(a != axis for a in range(dim))
-    period = np.where(flags, cell, 0.0)
-    progress.report(f"isotropic packing: a slab cell of {int(n_cell):,} elements (periodic "
-                    f"across axis {axis}, flat faces along it), repeated "
-                    f"{' x '.join(str(int(c)) for c in cells)}")
-    xj, rj, info = jam(r0, np.zeros(dim), cell, overlap=overlap, seed=rng.integers(2 ** 31),
-                       periodic=flags)
-    xs, rs, i, j, faces, added, res = stress_free_network(xj, rj, np.zeros(dim), cell, gap,
-                                                          prestress, period=period)
-    shift = float(np.abs(_nearest_image(xs - xj, period)).max())
-    xs = _wrap(xs, period)
-    grid = np.stack(np.meshgrid(*[np.arange(c) for c in cells], indexing="ij"), axis=-1)
-    x = (xs[None, :, :] + (grid.reshape(-1, dim) * cell)[:, None, :]).reshape(-1, dim)
-    r = np.tile(rs, int(np.prod(cells)))
-    pi, pj = _pairs(x, r, 0.0)  # the touching pairs: the bonds inside the box
-    keep = np.bincount(np.concatenate([pi, pj]), minlength=r.size) > 0
-    if not keep.all():  # elements the box's faces across the axis cut from all their bonds
-        x, r = x[keep], r[keep]
-        pi, pj = _pairs(x, r, 0.0)
-    hi = size / d_mean
-    vol = packing.element_volume(r, dim).sum() / np.prod(hi)
-    rep = {"n": int(r.size), "d_mean": 2.0 * float(r.mean()) * d_mean, "scale": info["scale"],
-           "jam_overlap": info["mean_overlap"], "jam_cycles": info["cycles"],
-           "fire_iterations": info["fire_iterations"], "jam_cached": info["cached"],
-           "bonds": int(pi.size), "face_contacts": len(faces) * int(np.prod(cells)),
-           "rattler_bonds": int(added) * int(np.prod(cells)),
-           "max_radius_change": float(np.abs(rs / rj - 1.0).max()), "max_shift": shift,
-           "residual": res, "packing_fraction": float(vol),
-           "tiles": [int(c) for c in cells], "tile_elements": int(n_cell),
-           "tile_size": [float(c) * d_mean for c in cell], "slab_axis": int(axis),
-           "loose_removed": int((~keep).sum()), "time_s": time.perf_counter() - t0}
-    progress.report(f"isotropic packing: {rep['n']:,} elements, {rep['bonds']:,} bonds in "
-                    f"{rep['time_s']:.1f} s")
-    return x * d_mean, r * d_mean, rep
+    flags = tuple(bool(a != axis) for a in range(cells.size))
+    return _repeated_cell(size, d_mean, distri_rate, cells, n_cell, flags, seed=seed,
+                          overlap=overlap, gap=gap, prestress=prestress)
 
 
 def tile_counts(size, vmean, phi, elements=TILE_ELEMENTS) -> np.ndarray:
@@ -675,6 +636,16 @@ def tiled_packing(size, d_mean, distri_rate, cells, n_cell, *, seed=0,
     across a face overhang it, no face contacts; an element left without a bond there is
     dropped). Returns ``(x, r, report)`` as :func:`isotropic_packing`, the report with
     ``tiles`` (cells per axis), ``tile_elements``, ``tile_size`` [m] and ``loose_removed``."""
+    return _repeated_cell(size, d_mean, distri_rate, cells, n_cell, True, seed=seed,
+                          overlap=overlap, gap=gap, prestress=prestress)
+
+
+def _repeated_cell(size, d_mean, distri_rate, cells, n_cell, periodic, *, seed, overlap, gap,
+                   prestress):
+    """:func:`tiled_packing` (``periodic`` True) and :func:`slab_packing` (one flag per axis):
+    the cell jammed with its periodicity, made stress-free, repeated ``cells`` times; the
+    touching pairs of the copies are the bonds; an element the box's faces cut from all its
+    bonds is dropped."""
     from geodem.build import packing
 
     t0 = time.perf_counter()
@@ -684,35 +655,42 @@ def tiled_packing(size, d_mean, distri_rate, cells, n_cell, *, seed=0,
     rng = np.random.default_rng(seed)
     r0 = packing.radii(int(n_cell), d_mean, distri_rate, rng) / d_mean
     cell = size / d_mean / cells
-    progress.report(f"isotropic packing: a periodic cell of {int(n_cell):,} elements, "
-                    f"repeated {' x '.join(str(int(c)) for c in cells)}")
+    flags = np.broadcast_to(np.asarray(periodic, bool), (dim,))
+    period = np.where(flags, cell, 0.0)
+    slab = None if flags.all() else int(np.flatnonzero(~flags)[0])
+    kind = "a periodic cell" if slab is None else \
+        f"a slab cell (periodic across axis {slab}, flat faces along it)"
+    progress.report(f"isotropic packing: {kind} of {int(n_cell):,} elements, repeated "
+                    f"{' x '.join(str(int(c)) for c in cells)}")
     xj, rj, info = jam(r0, np.zeros(dim), cell, overlap=overlap, seed=rng.integers(2 ** 31),
-                       periodic=True)
-    xs, rs, i, j, _, added, res = stress_free_network(xj, rj, np.zeros(dim), cell, gap,
-                                                      prestress, period=cell)
-    shift = float(np.abs(_nearest_image(xs - xj, cell)).max())
-    xs = _wrap(xs, cell)
+                       periodic=periodic)
+    xs, rs, i, j, faces, added, res = stress_free_network(xj, rj, np.zeros(dim), cell, gap,
+                                                          prestress, period=period)
+    shift = float(np.abs(_nearest_image(xs - xj, period)).max())
+    xs = _wrap(xs, period)
     grid = np.stack(np.meshgrid(*[np.arange(c) for c in cells], indexing="ij"), axis=-1)
     x = (xs[None, :, :] + (grid.reshape(-1, dim) * cell)[:, None, :]).reshape(-1, dim)
     r = np.tile(rs, int(np.prod(cells)))
     pi, pj = _pairs(x, r, 0.0)  # the touching pairs: the bonds inside the box
-    bonded = np.bincount(np.concatenate([pi, pj]), minlength=r.size)
-    keep = bonded > 0
+    keep = np.bincount(np.concatenate([pi, pj]), minlength=r.size) > 0
     if not keep.all():  # elements the box's faces cut from all their bonds
         x, r = x[keep], r[keep]
         pi, pj = _pairs(x, r, 0.0)
     hi = size / d_mean
     vol = packing.element_volume(r, dim).sum() / np.prod(hi)
+    copies = int(np.prod(cells))
     rep = {"n": int(r.size), "d_mean": 2.0 * float(r.mean()) * d_mean, "scale": info["scale"],
            "jam_overlap": info["mean_overlap"], "jam_cycles": info["cycles"],
            "fire_iterations": info["fire_iterations"], "jam_cached": info["cached"],
-           "bonds": int(pi.size),
-           "face_contacts": 0, "rattler_bonds": int(added) * int(np.prod(cells)),
+           "bonds": int(pi.size), "face_contacts": len(faces) * copies,
+           "rattler_bonds": int(added) * copies,
            "max_radius_change": float(np.abs(rs / rj - 1.0).max()), "max_shift": shift,
            "residual": res, "packing_fraction": float(vol),
            "tiles": [int(c) for c in cells], "tile_elements": int(n_cell),
-           "tile_size": [float(c) * d_mean for c in cell],
-           "loose_removed": int((~keep).sum()), "time_s": time.perf_counter() - t0}
+           "tile_size": [float(c) * d_mean for c in cell]}
+    if slab is not None:
+        rep["slab_axis"] = slab
+    rep.update(loose_removed=int((~keep).sum()), time_s=time.perf_counter() - t0)
     progress.report(f"isotropic packing: {rep['n']:,} elements, {rep['bonds']:,} bonds in "
                     f"{rep['time_s']:.1f} s")
     return x * d_mean, r * d_mean, rep
