@@ -46,9 +46,9 @@ large is filled by :func:`tiled_packing`: one periodic cell of about :data:`TILE
 elements (steps 1-2 without faces, the pairs by their nearest image; steps 3-4 with the bonds
 across the cell's boundaries) repeated over the box. The cell's cost does not grow with the
 box. The micro-structure repeats every cell side (~20 d_mean), and the box's faces cut the
-cells instead of being flat and touched. A specimen whose faces along one axis must stay flat
-(a 3-D Brazilian disc's) is a slab instead (:func:`slab_packing`): one cell periodic across
-that axis and bounded by the box's two faces along it, repeated across.
+cells instead of being flat and touched. A specimen whose faces along some axes must stay flat
+(a 3-D Brazilian disc's sides and poles) is a strip instead (:func:`strip_packing`): one cell
+periodic along the other axes and bounded by the box's faces along these, repeated.
 """
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ from numba import njit
 from geodem.build import progress
 from geodem.threads import single_threaded_blas
 
-__all__ = ["bond_network", "isotropic_packing", "jam", "slab_packing", "stress_free",
+__all__ = ["bond_network", "isotropic_packing", "jam", "strip_packing", "stress_free",
            "stress_free_network"]
 
 PHI_START = 0.3
@@ -314,7 +314,7 @@ def jam_fresh(r0, lo, hi, *, overlap=DEFAULT_OVERLAP, seed=0, max_cycles=60, x0=
     ``x0``: starting centres (reduced units; default uniformly random in the box), e.g. placed
     with a density that follows a graded size field (:mod:`geodem.build.graded`).
     ``periodic``: the box is a periodic cell (no faces; centres returned inside it); or one
-    flag per axis (a slab: periodic along some axes, bounded by faces along the others)."""
+    flag per axis (a strip: periodic along some axes, bounded by faces along the others)."""
     rng = np.random.default_rng(seed)
     lo = np.asarray(lo, float)
     hi = np.asarray(hi, float)
@@ -509,18 +509,18 @@ def stress_free(x, r, i, j, faces, lo, hi, *, prestress=DEFAULT_PRESTRESS, itera
 # ============================================================================ driver
 def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=None,
                       overlap=DEFAULT_OVERLAP, gap=DEFAULT_GAP, prestress=DEFAULT_PRESTRESS,
-                      tile=None, slab_axis=None):
+                      tile=None, periodic_axes=None):
     """A dense, isotropic, stress-free random packing filling the box ``[0, size]`` (module
     docstring). ``n`` elements (default: ``phi`` x box volume / mean element volume, so that
     the jammed diameters come out close to ``d_mean``; ``phi`` default: 0.635 in 3-D, 0.84 in
     2-D); ``overlap``, ``gap`` and ``prestress``
     in units of ``d_mean``. Above :data:`TILE_ABOVE` elements (``tile`` None; True: always,
     False: never) the packing is a periodic cell repeated over the box
-    (:func:`tiled_packing`). ``slab_axis``: above :data:`TILE_ABOVE` elements, a slab
-    periodic across the other axes and bounded by the box's flat faces along this one,
-    repeated across (:func:`slab_packing`; ``tile`` is then not read): for a specimen whose
-    faces on that axis must be whole, such as a 3-D Brazilian disc's, that would take an hour
-    to jam whole. Returns ``(x, r, report)`` in metres; the report has ``n``,
+    (:func:`tiled_packing`). ``periodic_axes``: above :data:`TILE_ABOVE` elements, a strip
+    periodic along these axes and bounded by the box's flat faces along the others, repeated
+    along them (:func:`strip_packing`; ``tile`` is then not read): for a specimen whose faces
+    on the other axes must be whole, such as a 3-D Brazilian disc's (its flat sides and its
+    poles under the platens), that would take an hour to jam whole. Returns ``(x, r, report)`` in metres; the report has ``n``,
     ``d_mean`` (of the result), ``scale`` (jammed / requested diameters), ``jam_overlap``,
     ``bonds`` (pairs to bond), ``face_contacts``, ``rattler_bonds``, ``max_radius_change``
     (relative), ``residual`` (in d_mean), ``packing_fraction`` (whole box), ``time_s``."""
@@ -539,13 +539,14 @@ def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=None
     if n is None:
         # a wall leaves a looser layer: about WALL_DEFICIT d_mean of each face counts as empty
         n = round(phi * float(np.prod(size - 2.0 * WALL_DEFICIT * d_mean)) / vmean)
-    if slab_axis is not None and n > TILE_ABOVE:
-        cells = slab_counts(size, vmean, phi, int(slab_axis))
-        cell = size / cells
-        n_cell = round(phi * float(np.prod(_less_walls(cell, d_mean, int(slab_axis))))
-                       / vmean) if whole else max(1, round(n / int(np.prod(cells))))
-        return slab_packing(size, d_mean, distri_rate, int(slab_axis), cells, n_cell,
-                            seed=seed, overlap=overlap, gap=gap, prestress=prestress)
+    if periodic_axes is not None and n > TILE_ABOVE:
+        cells = strip_counts(size, vmean, phi, periodic_axes)
+        cell = _less_walls(size / cells, d_mean, [a for a in range(dim)
+                                                  if a not in set(periodic_axes)])
+        n_cell = round(phi * float(np.prod(cell)) / vmean) if whole else \
+            max(1, round(n / int(np.prod(cells))))
+        return strip_packing(size, d_mean, distri_rate, periodic_axes, cells, n_cell,
+                             seed=seed, overlap=overlap, gap=gap, prestress=prestress)
     if tile is False and n > WHOLE_JAM_MAX:
         raise ValueError(f"a random packing of {n:,} elements jammed whole (not tiled: a disc "
                          f"or another lab specimen whose faces must be whole); allowed: up to "
@@ -575,42 +576,47 @@ def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=None
     return xs * d_mean, rs * d_mean, rep
 
 
-def _less_walls(extent, d_mean, axis):
-    """``extent`` less the looser layer of :data:`WALL_DEFICIT` at both faces along ``axis``."""
+def _less_walls(extent, d_mean, axes):
+    """``extent`` less the looser layer of :data:`WALL_DEFICIT` at both faces along ``axes``."""
     e = np.array(extent, float)
-    e[axis] -= 2.0 * WALL_DEFICIT * d_mean
+    e[list(axes)] -= 2.0 * WALL_DEFICIT * d_mean
     return e
 
 
-def slab_counts(size, vmean, phi, axis, elements=TILE_ELEMENTS) -> np.ndarray:
-    """Cells along each axis of the box ``size`` [m] for a slab (:func:`slab_packing`) of
-    about ``elements`` elements a cell: one cell along ``axis`` (the box's whole extent), the
-    cell's side across it closest to that of a square (cube) of that volume."""
+def strip_counts(size, vmean, phi, periodic_axes, elements=TILE_ELEMENTS) -> np.ndarray:
+    """Cells along each axis of the box ``size`` [m] for a strip (:func:`strip_packing`) of
+    about ``elements`` elements a cell: one cell along every bounded axis (the box's whole
+    extent), the cell's side along the ``periodic_axes`` closest to that of a square (a
+    segment, a cube) of that volume."""
     size = np.asarray(size, float)
-    across = np.delete(np.arange(size.size), axis)
-    side = (elements * vmean / phi / size[axis]) ** (1.0 / across.size)
+    along = np.asarray(periodic_axes, np.int64)
+    bounded = np.delete(np.arange(size.size), along)
+    side = (elements * vmean / phi / float(np.prod(size[bounded]))) ** (1.0 / along.size)
     cells = np.ones(size.size, np.int64)
-    cells[across] = np.maximum(1, np.round(size[across] / side))
+    cells[along] = np.maximum(1, np.round(size[along] / side))
     return cells
 
 
-def slab_packing(size, d_mean, distri_rate, axis, cells, n_cell, *, seed=0,
-                 overlap=DEFAULT_OVERLAP, gap=DEFAULT_GAP, prestress=DEFAULT_PRESTRESS):
-    """A random packing of the box ``[0, size]`` [m] made of one cell ``size / cells``
-    (``cells[axis]`` = 1: the box's whole extent along ``axis``) of ``n_cell`` elements,
-    periodic across ``axis`` and bounded by the box's two flat faces along it, repeated
-    ``cells`` times across: the cell jammed (:func:`jam`, periodic across) and made
-    stress-free (:func:`stress_free_network`: the bonds across the cell's periodic
-    boundaries, and the elements at the faces tangent to them), so the faces along ``axis``
-    are flat and touched as in a box jammed whole, while the cost is the cell's: a 3-D disc
-    box of 42,282 elements jammed whole took 55-80 CPU-minutes. The micro-structure repeats
-    every cell side across; the box's faces across ``axis`` cut the cells (an element left
-    without a bond there is dropped). Returns ``(x, r, report)`` as :func:`tiled_packing`,
-    with ``slab_axis`` and the face contacts."""
+def strip_packing(size, d_mean, distri_rate, periodic_axes, cells, n_cell, *, seed=0,
+                  overlap=DEFAULT_OVERLAP, gap=DEFAULT_GAP, prestress=DEFAULT_PRESTRESS):
+    """A random packing of the box ``[0, size]`` [m] made of one cell ``size / cells`` of
+    ``n_cell`` elements, periodic along ``periodic_axes`` and bounded by the box's flat faces
+    along the others (``cells`` = 1 there: the box's whole extent), repeated ``cells`` times
+    along the periodic axes: the cell jammed (:func:`jam`, periodic along those axes) and
+    made stress-free (:func:`stress_free_network`: the bonds across the cell's periodic
+    boundaries, and the elements at the faces tangent to them). The bounded faces are flat
+    and touched as in a box jammed whole, while the cost is the cell's: a 3-D Brazilian
+    disc's box of 42,282 elements jammed whole took 55-80 CPU-minutes. The micro-structure
+    repeats every cell side along the periodic axes; the box's faces there cut the cells (an
+    element left without a bond is dropped). Returns ``(x, r, report)`` as
+    :func:`tiled_packing`, with ``periodic_axes`` and the face contacts."""
     cells = np.asarray(cells, np.int64)
-    if cells[axis] != 1:
-        raise ValueError(f"a slab has one cell along its axis {axis}, got {cells.tolist()}")
-    flags = tuple(bool(a != axis) for a in range(cells.size))
+    along = {int(a) for a in periodic_axes}
+    flags = tuple(a in along for a in range(cells.size))
+    if not any(flags) or all(flags) or np.any(cells[~np.array(flags)] != 1):
+        raise ValueError(f"a strip is periodic along some axes, not all, and has one cell "
+                         f"along the others: periodic axes {sorted(along)}, cells "
+                         f"{cells.tolist()}")
     return _repeated_cell(size, d_mean, distri_rate, cells, n_cell, flags, seed=seed,
                           overlap=overlap, gap=gap, prestress=prestress)
 
@@ -642,7 +648,7 @@ def tiled_packing(size, d_mean, distri_rate, cells, n_cell, *, seed=0,
 
 def _repeated_cell(size, d_mean, distri_rate, cells, n_cell, periodic, *, seed, overlap, gap,
                    prestress):
-    """:func:`tiled_packing` (``periodic`` True) and :func:`slab_packing` (one flag per axis):
+    """:func:`tiled_packing` (``periodic`` True) and :func:`strip_packing` (one flag per axis):
     the cell jammed with its periodicity, made stress-free, repeated ``cells`` times; the
     touching pairs of the copies are the bonds; an element the box's faces cut from all its
     bonds is dropped."""
@@ -657,9 +663,9 @@ def _repeated_cell(size, d_mean, distri_rate, cells, n_cell, periodic, *, seed, 
     cell = size / d_mean / cells
     flags = np.broadcast_to(np.asarray(periodic, bool), (dim,))
     period = np.where(flags, cell, 0.0)
-    slab = None if flags.all() else int(np.flatnonzero(~flags)[0])
-    kind = "a periodic cell" if slab is None else \
-        f"a slab cell (periodic across axis {slab}, flat faces along it)"
+    strip = None if flags.all() else [int(a) for a in np.flatnonzero(flags)]
+    kind = "a periodic cell" if strip is None else \
+        f"a strip cell (periodic along axes {strip}, flat faces along the others)"
     progress.report(f"isotropic packing: {kind} of {int(n_cell):,} elements, repeated "
                     f"{' x '.join(str(int(c)) for c in cells)}")
     xj, rj, info = jam(r0, np.zeros(dim), cell, overlap=overlap, seed=rng.integers(2 ** 31),
@@ -688,8 +694,8 @@ def _repeated_cell(size, d_mean, distri_rate, cells, n_cell, periodic, *, seed, 
            "residual": res, "packing_fraction": float(vol),
            "tiles": [int(c) for c in cells], "tile_elements": int(n_cell),
            "tile_size": [float(c) * d_mean for c in cell]}
-    if slab is not None:
-        rep["slab_axis"] = slab
+    if strip is not None:
+        rep["periodic_axes"] = strip
     rep.update(loose_removed=int((~keep).sum()), time_s=time.perf_counter() - t0)
     progress.report(f"isotropic packing: {rep['n']:,} elements, {rep['bonds']:,} bonds in "
                     f"{rep['time_s']:.1f} s")

@@ -72,7 +72,7 @@ def key(r0, lo, hi, overlap, seed, max_cycles, x0, periodic) -> str:
         arr = np.ascontiguousarray(a, dtype=np.float64)
         h.update(repr(arr.shape).encode())
         h.update(arr.tobytes())
-    # one flag (a periodic cell or none) keeps the keys it always had; a slab's per-axis flags
+    # one flag (a periodic cell or none) keeps the keys it always had; a strip's per-axis flags
     per_axis = periodic if isinstance(periodic, bool) else tuple(bool(p) for p in periodic)
     h.update(repr((float(overlap), int(seed), int(max_cycles), x0 is None,
                    per_axis)).encode())

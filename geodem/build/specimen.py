@@ -271,14 +271,15 @@ def packing_notes(report) -> list[str]:
         return []
     from geodem.build.isotropic import TILE_ABOVE
 
-    if "slab_axis" in prep:
-        side = min(w for a, w in enumerate(prep["tile_size"]) if a != prep["slab_axis"])
-        return [f"the random packing's {prep['n']:,} elements are a slab cell of "
+    if "periodic_axes" in prep:
+        along = prep["periodic_axes"]
+        side = min(prep["tile_size"][a] for a in along)
+        names = " and ".join("xyz"[a] for a in along)
+        return [f"the random packing's {prep['n']:,} elements are a strip cell of "
                 f"{prep['tile_elements']:,} repeated {' x '.join(map(str, prep['tiles']))} "
-                f"(more than {TILE_ABOVE:,} elements): periodic across axis "
-                f"{prep['slab_axis']} with flat faces along it, as jammed whole; the "
-                f"micro-structure repeats every {side:.3g} m across (docs/brazilian.md, "
-                "'Large 3-D discs')"]
+                f"(more than {TILE_ABOVE:,} elements): periodic along {names}, its other "
+                f"faces flat as jammed whole; the micro-structure repeats every {side:.3g} m "
+                f"along {names} (docs/brazilian.md, 'Large 3-D discs')"]
     return [f"the random packing's {prep['n']:,} elements are a periodic cell of "
             f"{prep['tile_elements']:,} repeated {' x '.join(map(str, prep['tiles']))} (a box "
             f"of more than {TILE_ABOVE:,} elements: docs/performance.md, 'Cost against "
@@ -324,7 +325,7 @@ def packing_recipe(element, dim: int) -> str:
 
 def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material=None, dim=3,
                   seed=0, gap=None, backend=None, tol=1e-3, element=None, tile=None,
-                  slab_axis=None):
+                  periodic_axes=None):
     """Pack, cut and cement a specimen. ``material``: rock properties (``E, nu, Tu, Cu, mu_i,
     rho``) converted by ``macro_to_micro`` at ``d_mean``; or, with ``element`` (size-free
     element parameters, :func:`geodem.materials.per_size` keys, e.g. calibrated ones), only
@@ -332,8 +333,9 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
     :func:`cement` keys plus ``packing`` (deposition/compaction summaries) and ``volume``
     (shape volume, area in 2-D) and ``shape_packing_fraction`` (element volume / shape volume).
     ``tile``: an isotropic packing's tiling (:func:`geodem.build.isotropic.isotropic_packing`;
-    None: above ``TILE_ABOVE`` elements, False: never); ``slab_axis``: above ``TILE_ABOVE``
-    elements a slab with flat faces along that axis instead (a 3-D disc's faces)."""
+    None: above ``TILE_ABOVE`` elements, False: never); ``periodic_axes``: above
+    ``TILE_ABOVE`` elements a strip periodic along these axes instead, with flat faces along
+    the others (a 3-D disc's sides and poles)."""
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
     mat = dict(DEFAULT_MATERIAL if material is None else material)
@@ -342,7 +344,8 @@ def make_specimen(shape="box", size=None, d_mean=0.01, distri_rate=0.2, material
     if recipe == "isotropic":
         return isotropic_specimen(shp, d_mean, distri_rate,
                                   specimen_params(mat, element, d_mean), mat["rho"], seed=seed,
-                                  backend=backend, tol=tol, tile=tile, slab_axis=slab_axis)
+                                  backend=backend, tol=tol, tile=tile,
+                                  periodic_axes=periodic_axes)
     blo, bhi = shp.bounds
     ext = bhi - blo
     margin = 1.5 * d_mean

@@ -201,13 +201,14 @@ def disc_with_platens(dim, diameter, d_mean, material: SpecimenMaterial, *, thic
     from geodem.core import groups
 
     size = (float(diameter),) if dim == 2 else (float(diameter), float(thickness))
-    # never tiled in all axes: a disc cut from cells periodic along its thickness too splits
+    # never tiled in all axes: a disc cut from cells periodic along its thickness splits
     # early (0.55-5.62 MPa against 8.3 jammed whole: docs/performance.md, "A tiled lab
-    # specimen"); a large 3-D disc's box is a slab periodic across and flat along the
-    # thickness (docs/brazilian.md, "Large 3-D discs")
+    # specimen"), and one whose poles are cut touches a platen with an element or two; a
+    # large 3-D disc's box is a strip periodic along x alone, its sides (y) and poles (z)
+    # flat as jammed whole (docs/brazilian.md, "Large 3-D discs")
     st, rep = make_specimen("disc", size, d_mean, distri_rate, material.material, dim, seed,
                             element=material.element, gap=_bond_gap(material, d_mean),
-                            tile=False, slab_axis=1 if dim == 3 else None)
+                            tile=False, periodic_axes=(0,) if dim == 3 else None)
     st, removed = prune_loose(st, 2, n_across=float(diameter) / d_mean)
     if st.n < 10:
         raise ValueError(f"only {st.n} elements of the disc have 2 bonds or more: make the "

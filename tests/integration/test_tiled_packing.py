@@ -165,12 +165,12 @@ def test_a_cut_face_specimen_is_measured_over_its_box(tmp_path, monkeypatch):
     assert over[0] * over[1] > 1.05 * cut_area  # what the elements' extent would have read
 
 
-def test_a_brazilian_disc_is_never_tiled_across_its_thickness(monkeypatch):
-    """A disc cut from cells periodic along its thickness splits early, so the disc builder
-    never tiles them: with tiling forced for every box (TILE_ABOVE = 0), a small 3-D disc
-    comes from a slab (periodic across, flat faces along its thickness y, touched by elements
-    as in a box jammed whole), and below TILE_ABOVE from its box jammed whole, the same
-    packing bit for bit as before."""
+def test_a_brazilian_disc_is_never_tiled_across_its_faces(monkeypatch):
+    """A disc cut from cells periodic along its thickness splits early, and one whose poles
+    are cut touches a platen with one or two elements, so the disc builder never tiles those
+    axes: with tiling forced for every box (TILE_ABOVE = 0), a small 3-D disc comes from a
+    strip periodic along x alone, its sides (y) and poles (z) flat and touched by elements as
+    in a box jammed whole; below TILE_ABOVE, from its box jammed whole, as before."""
     from geodem.cases.brazilian import disc_with_platens
     from geodem.workflow.material import SpecimenMaterial
 
@@ -179,16 +179,20 @@ def test_a_brazilian_disc_is_never_tiled_across_its_thickness(monkeypatch):
     plain, rep_plain, _ = disc_with_platens(3, 0.08, 0.01, mat, thickness=0.03)
     assert "tiles" not in rep_plain["packing"] and rep_plain["packing"]["face_contacts"] > 0
     monkeypatch.setattr(isotropic, "TILE_ABOVE", 0)
-    monkeypatch.setattr(isotropic.slab_counts, "__defaults__", (100,))
-    slab, rep, _ = disc_with_platens(3, 0.08, 0.01, mat, thickness=0.03)
+    monkeypatch.setattr(isotropic.strip_counts, "__defaults__", (100,))  # 2 cells
+    strip, rep, _ = disc_with_platens(3, 0.08, 0.01, mat, thickness=0.03)
     p = rep["packing"]
-    assert p["slab_axis"] == 1 and p["tiles"][1] == 1 and p["tiles"][0] > 1
-    assert p["face_contacts"] > 0
-    disc = slab.x[:rep["n_disc"]], slab.r[:rep["n_disc"]]
-    # flat to the balance's settling (1e-8 m here; d_mean 1e-2 m)
-    assert (disc[0][:, 1] - disc[1]).min() == pytest.approx(0.0, abs=1e-6)
-    assert (disc[0][:, 1] + disc[1]).max() == pytest.approx(0.03, abs=1e-6)
-    assert not np.array_equal(slab.x[:10], plain.x[:10])
+    assert p["periodic_axes"] == [0] and p["tiles"][1:] == [1, 1] and p["tiles"][0] > 1
+    disc = strip.x[:rep["n_disc"]], strip.r[:rep["n_disc"]]
+    # flat to the balance's settling (1e-8 m here; d_mean 1e-2 m): sides and poles
+    for axis, top in ((1, 0.03), (2, 0.08)):
+        low, high = disc[0][:, axis] - disc[1], disc[0][:, axis] + disc[1]
+        assert low.min() == pytest.approx(0.0, abs=1e-6)
+        assert high.max() == pytest.approx(top, abs=1e-6)
+    # several elements at each pole, as in the box jammed whole
+    for x, r in ((plain.x, plain.r), disc):
+        assert ((x[:, 2] - r) < 1e-6).sum() >= 2
+    assert not np.array_equal(strip.x[:10], plain.x[:10])
 
 
 def test_a_whole_jam_beyond_its_limit_is_refused_before_any_work():
@@ -197,60 +201,69 @@ def test_a_whole_jam_beyond_its_limit_is_refused_before_any_work():
         isotropic.isotropic_packing([1.0, 1.0, 0.1], 0.01, tile=False)
 
 
-SLAB = np.array([12.0, 6.0, 12.0])  # d_mean = 1: a slab 6 thick, cells 6 x 6 across
+STRIP = np.array([12.0, 6.0, 8.0])  # d_mean = 1: periodic along x, cells 6 x 6 x 8
 
 
 @pytest.fixture(scope="module")
-def slab():
-    return isotropic.slab_packing(SLAB, 1.0, 0.2, 1, (2, 1, 2), 230, seed=3)
+def strip():
+    return isotropic.strip_packing(STRIP, 1.0, 0.2, (0,), (2, 1, 1), 220, seed=3)
 
 
-def test_a_slab_is_stress_free_across_its_cells_and_flat_along_its_axis(slab):
-    """Periodic across y, bounded by two flat faces along y: every touching pair overlaps by
+def test_a_strip_is_stress_free_across_its_cells_and_flat_along_its_bounded_axes(strip):
+    """Periodic along x, bounded by flat faces along y and z: every touching pair overlaps by
     the prestress (inside a cell and across two), every element at a face is tangent to it,
     and the faces are touched about as densely as those of a box jammed whole."""
-    x, r, rep = slab
+    x, r, rep = strip
     pi, pj = isotropic._pairs(x, r, 0.05)
     gap = np.linalg.norm(x[pj] - x[pi], axis=1) - r[pi] - r[pj]
     touching = gap <= 0.0
     assert np.allclose(gap[touching], -isotropic.DEFAULT_PRESTRESS, atol=1e-10)
-    assert rep["bonds"] == touching.sum() and rep["slab_axis"] == 1
-    low, high = x[:, 1] - r, x[:, 1] + r
-    assert low.min() == pytest.approx(0.0, abs=1e-12) and high.max() == pytest.approx(6.0)
-    at_faces = np.isclose(low, 0.0, atol=1e-9).sum() + np.isclose(high, 6.0, atol=1e-9).sum()
+    assert rep["bonds"] == touching.sum() and rep["periodic_axes"] == [0]
+    at_faces = 0
+    for axis in (1, 2):
+        low, high = x[:, axis] - r, x[:, axis] + r
+        assert low.min() == pytest.approx(0.0, abs=1e-12)
+        assert high.max() == pytest.approx(STRIP[axis])
+        at_faces += np.isclose(low, 0.0, atol=1e-9).sum()
+        at_faces += np.isclose(high, STRIP[axis], atol=1e-9).sum()
     assert at_faces == rep["face_contacts"]
-    # per unit of face area, as in a box jammed whole (measured: 0.43 and 0.42 per d_mean^2)
-    _, _, whole = isotropic.isotropic_packing(SLAB, 1.0, seed=3)
-    per_area = at_faces / (2 * 12.0 * 12.0)
-    whole_per_area = whole["face_contacts"] / (2 * (12 * 12 + 2 * 12 * 6))
+    # per unit of face area, as in a box jammed whole
+    _, _, whole = isotropic.isotropic_packing(STRIP, 1.0, seed=3)
+    per_area = at_faces / (2 * 12.0 * (6.0 + 8.0))
+    whole_per_area = whole["face_contacts"] / (2 * (12 * 6 + 12 * 8 + 6 * 8))
     assert per_area == pytest.approx(whole_per_area, rel=0.25)
     # bonds cross the cells' boundary as often as a plane through a cell's middle
     a, b = x[pi[touching]], x[pj[touching]]
-    for axis in (0, 2):
-        def crossing(plane):
-            return int(((a[:, axis] - plane) * (b[:, axis] - plane) < 0).sum())
-        assert crossing(6.0) == pytest.approx(0.5 * (crossing(3.0) + crossing(9.0)), rel=0.3)
+
+    def crossing(plane):
+        return int(((a[:, 0] - plane) * (b[:, 0] - plane) < 0).sum())
+
+    assert crossing(6.0) == pytest.approx(0.5 * (crossing(3.0) + crossing(9.0)), rel=0.3)
 
 
-def test_slab_counts_keep_one_cell_along_the_axis():
+def test_strip_counts_keep_one_cell_along_the_bounded_axes():
     vmean = np.pi / 6.0
-    cells = isotropic.slab_counts([60.0, 10.0, 60.0], vmean, 0.635, 1)
-    assert cells[1] == 1 and cells[0] == cells[2] == 2  # cells of ~8,000: 27 d across
-    assert list(isotropic.slab_counts([60.0, 10.0, 60.0], vmean, 0.635, 1, 2000)) == [5, 1, 5]
+    # the 3-D disc 60 across and 10 thick: cells of ~8,000 elements 11.4 d wide along x
+    assert list(isotropic.strip_counts([60.0, 10.0, 60.0], vmean, 0.635, (0,))) == [5, 1, 1]
+    assert list(isotropic.strip_counts([60.0, 10.0, 60.0], vmean, 0.635, (0, 2))) == [2, 1, 2]
+    with pytest.raises(ValueError, match="periodic along some axes, not all"):
+        isotropic.strip_packing(STRIP, 1.0, 0.2, (0, 1, 2), (2, 1, 1), 10)
+    with pytest.raises(ValueError, match="one cell"):
+        isotropic.strip_packing(STRIP, 1.0, 0.2, (0,), (2, 2, 1), 10)
 
 
-def test_a_slab_jam_is_cached_apart_from_a_periodic_cell():
+def test_a_strip_jam_is_cached_apart_from_a_periodic_cell():
     from geodem.build import jam_cache
 
     args = (np.ones(10), np.zeros(3), np.full(3, 3.0), 1e-4, 0, 60, None)
-    keys = {jam_cache.key(*args, p) for p in (True, False, (True, False, True))}
+    keys = {jam_cache.key(*args, p) for p in (True, False, (True, False, False))}
     assert len(keys) == 3
 
 
-def test_a_slab_says_so_in_its_warnings():
+def test_a_strip_says_so_in_its_warnings():
     from geodem.build.specimen import packing_notes
 
-    note, = packing_notes({"packing": {"n": 40_000, "tiles": [2, 1, 2], "tile_elements": 10_000,
-                                       "tile_size": [0.3, 0.1, 0.3], "slab_axis": 1}})
-    assert "slab cell of 10,000 repeated 2 x 1 x 2" in note and "flat faces" in note
-    assert "0.3 m across" in note
+    note, = packing_notes({"packing": {"n": 41_000, "tiles": [5, 1, 1], "tile_elements": 8_200,
+                                       "tile_size": [0.12, 0.1, 0.6], "periodic_axes": [0]}})
+    assert "strip cell of 8,200 repeated 5 x 1 x 1" in note and "periodic along x" in note
+    assert "every 0.12 m along x" in note
