@@ -114,12 +114,13 @@ def test_the_stiff_clays_brazilian_test_gives_its_tensile_strength_on_a_fine_dis
 @pytest.mark.validation
 def test_the_3d_brazilian_test_gives_the_lab_tensile_strength_on_a_fine_disc(tmp_path):
     """The library's 3-D sandstone (turning elements, rolling stiffness 8) on a disc 60 d_mean
-    across and 10 thick (0.6 x 0.1 m, about 34,500 elements; the disc's box, 42,282 elements,
-    jammed whole): seed 0 split at 3.78 MPa, 0.94 x the lab Tu, its first cracks 0.98 R from
-    the centre (measured 2026-12-06; docs/calibration.md, "Friction angle in 3-D"). On discs 40
-    across the same rock reads 1.09-1.47 x, on 10 across about 3 x: the coarse 3-D disc is
-    crushed under its platens before it splits. About 30 minutes on one core (20 of them the
-    packing; a second run takes it from the packing cache)."""
+    across and 10 thick (0.6 x 0.1 m, about 34,600 elements; the disc's box a strip of 5 cells
+    periodic along x, flat along y and z: docs/brazilian.md, "Large 3-D discs"): seed 0 split
+    at 4.16 MPa, 1.04 x the lab Tu, its first cracks 0.93 R from the centre (measured
+    2026-12-07; its box jammed whole read 0.94 x on 2026-12-06). On discs 40 across the same
+    rock reads 1.09-1.47 x, on 10 across about 3 x: the coarse 3-D disc is crushed under its
+    platens before it splits. About 30 minutes on one core (6.5 of them the packing; a second
+    run takes the jam from the packing cache)."""
     s = _run(tmp_path, "brazilian3d", {
         "metadata": {"name": "brazilian3d", "seed": 0},
         "model": {"type": "brazilian_disc", "dim": 3, "diameter": 0.6, "thickness": 0.1,
