@@ -612,16 +612,21 @@ def turning_3d_triaxial(spec_, el, folder):
     return {"phi": phi, "peak_0": 1.0, "peak_c": 2.0, "sigma3": 0.1, "wall_time_s": 0.0}
 
 
+def turning_3d_spec(phi):
+    """3-D specimens of turning elements (rolling stiffness 8) and a rock of angle ``phi``."""
+    rot8 = {"packing": "isotropic", "rotation": True, "bond_moment": 100.0,
+            "rolling_friction": 0.0, "rolling_stiffness": 8.0}
+    return C.CalibrationSpec(targets=dict(TARGETS, mu_i=math.tan(math.radians(phi))),
+                             name="synthetic", dim=3, d_mean=0.01, ucs_size=(0.1, 0.1, 0.2),
+                             structure=rot8, friction=True)
+
+
 def test_a_3d_turning_rock_holds_its_angle_by_mu_while_rho_s_holds_cu_over_tu(tmp_path):
     """With the angle a plane in (ln rho_s, ln mu), raising rho_s for Cu / Tu is seen to raise
     the angle, and mu falls to bring it back; a line in ln mu alone read that rise as a fall
     with mu (the 3-D sandstone from the prior rates: 36.5, 38.9, 38.6 deg as mu fell)."""
-    rot8 = {"packing": "isotropic", "rotation": True, "bond_moment": 100.0,
-            "rolling_friction": 0.0, "rolling_stiffness": 8.0}
-    sp = C.CalibrationSpec(targets=dict(TARGETS, mu_i=math.tan(math.radians(35.0))),
-                           name="synthetic", dim=3, d_mean=0.01, ucs_size=(0.1, 0.1, 0.2),
-                           structure=rot8, friction=True)
-    out = C.calibrate(sp, tmp_path, measure_fn=turning_3d, friction_fn=turning_3d_triaxial)
+    out = C.calibrate(turning_3d_spec(35.0), tmp_path, measure_fn=turning_3d,
+                      friction_fn=turning_3d_triaxial)
     assert out["converged"] and out["iterations"] <= 8
     assert abs(turning_3d_triaxial(None, out["element"], None)["phi"] - 35.0) <= 2.0
     for k in ("E", "Cu", "Tu"):
@@ -650,17 +655,11 @@ def test_a_3d_turning_rock_far_above_its_angle_takes_the_step_the_plane_asks_for
     several degrees high; at 7.4 deg per unit of ln mu the 2-D steps in mu (a factor 1.12, or
     1.5 far off) brought it down about a degree an iteration. The step the plane asks for, up
     to a factor 2, converges in four."""
-    rot8 = {"packing": "isotropic", "rotation": True, "bond_moment": 100.0,
-            "rolling_friction": 0.0, "rolling_stiffness": 8.0}
-
     def high(spec_, el, folder):
         m = turning_3d_triaxial(spec_, el, folder)
         return dict(m, phi=m["phi"] + 8.0)
 
-    sp = C.CalibrationSpec(targets=dict(TARGETS, mu_i=math.tan(math.radians(50.0))),
-                           name="synthetic", dim=3, d_mean=0.01, ucs_size=(0.1, 0.1, 0.2),
-                           structure=rot8, friction=True)
-    out = C.calibrate(sp, tmp_path, measure_fn=turning_3d, friction_fn=high)
+    out = C.calibrate(turning_3d_spec(50.0), tmp_path, measure_fn=turning_3d, friction_fn=high)
     assert out["converged"] and out["iterations"] <= 4
     assert abs(high(None, out["element"], None)["phi"] - 50.0) <= 2.0
     mus = [h["element"]["mu"] for h in out["history"]]
