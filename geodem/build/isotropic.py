@@ -75,6 +75,8 @@ TILE_ELEMENTS = 8_000
 #: 42,282 elements took about 18 minutes to build on one core (2026-12-06), and the cost grows
 #: ~N^2.6 (docs/performance.md, "A tiled lab specimen")
 WHOLE_JAM_MAX = 60_000
+#: the narrowest side [d_mean] of a strip's cell along its periodic axes (:func:`strip_counts`)
+STRIP_MIN_SIDE = 6.0
 #: FIRE iterations of one growth step of a periodic cell (:func:`jam`)
 GROWTH_CAP = 30_000
 PHI_BULK = 0.635  # random close packing of the default size spread (measured: 0.639)
@@ -540,7 +542,8 @@ def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=None
         # a wall leaves a looser layer: about WALL_DEFICIT d_mean of each face counts as empty
         n = round(phi * float(np.prod(size - 2.0 * WALL_DEFICIT * d_mean)) / vmean)
     if periodic_axes is not None and n > TILE_ABOVE:
-        cells = strip_counts(size, vmean, phi, periodic_axes)
+        cells = strip_counts(size, vmean, phi, periodic_axes,
+                             min_side=STRIP_MIN_SIDE * d_mean)
         cell = _less_walls(size / cells, d_mean, [a for a in range(dim)
                                                   if a not in set(periodic_axes)])
         n_cell = round(phi * float(np.prod(cell)) / vmean) if whole else \
@@ -583,17 +586,20 @@ def _less_walls(extent, d_mean, axes):
     return e
 
 
-def strip_counts(size, vmean, phi, periodic_axes, elements=TILE_ELEMENTS) -> np.ndarray:
+def strip_counts(size, vmean, phi, periodic_axes, elements=TILE_ELEMENTS,
+                 min_side=0.0) -> np.ndarray:
     """Cells along each axis of the box ``size`` [m] for a strip (:func:`strip_packing`) of
     about ``elements`` elements a cell: one cell along every bounded axis (the box's whole
     extent), the cell's side along the ``periodic_axes`` closest to that of a square (a
-    segment, a cube) of that volume."""
+    segment, a cube) of that volume, and at least ``min_side`` [m] (a cell a few elements
+    wide does not jam: its elements meet their own images)."""
     size = np.asarray(size, float)
     along = np.asarray(periodic_axes, np.int64)
     bounded = np.delete(np.arange(size.size), along)
     side = (elements * vmean / phi / float(np.prod(size[bounded]))) ** (1.0 / along.size)
     cells = np.ones(size.size, np.int64)
-    cells[along] = np.maximum(1, np.round(size[along] / side))
+    cells[along] = np.maximum(1, np.minimum(np.round(size[along] / side),
+                                            np.floor(size[along] / max(min_side, 1e-300))))
     return cells
 
 

@@ -179,10 +179,9 @@ def test_a_brazilian_disc_is_never_tiled_across_its_faces(monkeypatch):
     plain, rep_plain, _ = disc_with_platens(3, 0.08, 0.01, mat, thickness=0.03)
     assert "tiles" not in rep_plain["packing"] and rep_plain["packing"]["face_contacts"] > 0
     monkeypatch.setattr(isotropic, "TILE_ABOVE", 0)
-    monkeypatch.setattr(isotropic.strip_counts, "__defaults__", (100,))  # 2 cells
     strip, rep, _ = disc_with_platens(3, 0.08, 0.01, mat, thickness=0.03)
-    p = rep["packing"]
-    assert p["periodic_axes"] == [0] and p["tiles"][1:] == [1, 1] and p["tiles"][0] > 1
+    p = rep["packing"]  # one cell: at least STRIP_MIN_SIDE (6 d_mean) wide along x
+    assert p["periodic_axes"] == [0] and p["tiles"] == [1, 1, 1]
     disc = strip.x[:rep["n_disc"]], strip.r[:rep["n_disc"]]
     # flat to the balance's settling (1e-8 m here; d_mean 1e-2 m): sides and poles
     for axis, top in ((1, 0.03), (2, 0.08)):
@@ -246,6 +245,9 @@ def test_strip_counts_keep_one_cell_along_the_bounded_axes():
     # the 3-D disc 60 across and 10 thick: cells of ~8,000 elements 11.4 d wide along x
     assert list(isotropic.strip_counts([60.0, 10.0, 60.0], vmean, 0.635, (0,))) == [5, 1, 1]
     assert list(isotropic.strip_counts([60.0, 10.0, 60.0], vmean, 0.635, (0, 2))) == [2, 1, 2]
+    # a disc 300 across: cells of 8,000 would be 2.2 d wide; at least 6 wide, 50 of them
+    assert list(isotropic.strip_counts([300.0, 10.0, 300.0], vmean, 0.635, (0,),
+                                       min_side=6.0)) == [50, 1, 1]
     with pytest.raises(ValueError, match="periodic along some axes, not all"):
         isotropic.strip_packing(STRIP, 1.0, 0.2, (0, 1, 2), (2, 1, 1), 10)
     with pytest.raises(ValueError, match="one cell"):
