@@ -622,10 +622,6 @@ SHAPE_SCALE = (MAX_S_STEP, math.log(3.0), math.log(1.12))
 #: prior's 0.15 toward the 0.05 its 28 deg needs)
 MU_STEP_FAR = math.log(1.5)
 PHI_FAR = 4.0
-#: the largest step in ln mu of 3-D turning elements (:func:`_phi_plane`): their angle moves
-#: 7.4 deg per unit of ln mu, so the 2-D steps (a factor 1.12, or 1.5 far off) took the
-#: granite from 56 deg at mu 1.0 about 1 deg an iteration toward its 50
-MU_STEP_PLANE = math.log(2.0)
 
 
 def _phi_stuck(phi, target, tol=TOLERANCES["phi"]) -> bool:
@@ -861,8 +857,6 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=Fal
     if phi is not None and (abs(y_target[4] - phi[0]) > PHI_FAR
                             or _phi_stuck(Y[:, 4], y_target[4])):
         scale[2] = MU_STEP_FAR
-    if phi is not None and turning_3d:  # the step the plane asks for, up to a factor 2
-        scale[2] = min(MU_STEP_PLANE, max(scale[2], abs(y_target[4] - phi[0]) / phi[1][1]))
     x_new[:n], at_bound = _solve_paired(J, np.array(rhs), X[-1, :n], bounds[:n], scale[:n])
     other = "Tu" if prefer == "Cu" else "Cu"  # the strength that follows from the ratio
     unreachable = {key for key, hit in zip(("nu", other, "phi"), at_bound) if hit}
