@@ -522,7 +522,8 @@ def isotropic_packing(size, d_mean, distri_rate=0.2, *, seed=0, n=None, phi=None
     periodic along these axes and bounded by the box's flat faces along the others, repeated
     along them (:func:`strip_packing`; ``tile`` is then not read): for a specimen whose faces
     on the other axes must be whole, such as a 3-D Brazilian disc's (its flat sides and its
-    poles under the platens), that would take an hour to jam whole. Returns ``(x, r, report)`` in metres; the report has ``n``,
+    poles under the platens), that would take an hour to jam whole. Returns ``(x, r,
+    report)`` in metres; the report has ``n``,
     ``d_mean`` (of the result), ``scale`` (jammed / requested diameters), ``jam_overlap``,
     ``bonds`` (pairs to bond), ``face_contacts``, ``rattler_bonds``, ``max_radius_change``
     (relative), ``residual`` (in d_mean), ``packing_fraction`` (whole box), ``time_s``."""
@@ -631,9 +632,7 @@ def tile_counts(size, vmean, phi, elements=TILE_ELEMENTS) -> np.ndarray:
     """Cells along each axis of the box ``size`` [m] for cells of about ``elements`` elements
     of mean volume ``vmean`` [m^dim] at solid fraction ``phi``: the cell's side closest to
     that cube's, and a whole number of cells along every axis."""
-    size = np.asarray(size, float)
-    side = (elements * vmean / phi) ** (1.0 / size.size)
-    return np.maximum(1, np.round(size / side)).astype(np.int64)
+    return strip_counts(size, vmean, phi, range(len(size)), elements)
 
 
 def tiled_packing(size, d_mean, distri_rate, cells, n_cell, *, seed=0,
