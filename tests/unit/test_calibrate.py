@@ -369,6 +369,15 @@ def test_turning_elements_take_the_rotation_prior():
                                                dim=3, d_mean=0.01, ucs_size=(0.1, 0.1, 0.2)))
     assert turning3["ks_per_d"] / turning3["kn_per_d"] == pytest.approx(
         s0 + (0.2 - nu0) / slope, rel=1e-9)  # 0.3425: the sandstone's first step, taken
+    # 3-D BETA 8 angles: the sandstone's 35 deg between its two points, a granite's 50 deg
+    # just past the granite record's 48.9 at mu 0.616 (not beyond mu 1, where 56 was read)
+    def mu3(phi):
+        t = dict(TARGETS, nu=0.2, mu_i=math.tan(math.radians(phi)))
+        return C.prior_guess(C.CalibrationSpec(targets=t, structure=rot8, dim=3, friction=True,
+                                               d_mean=0.01, ucs_size=(0.1, 0.1, 0.2)))["mu"]
+    assert mu3(35.0) == pytest.approx(0.05 * math.exp(10.3 / (11.9 / math.log(4.9))), rel=1e-6)
+    assert mu3(50.0) == pytest.approx(
+        0.616 * math.exp(1.1 / (12.3 / math.log(0.616 / 0.245))), rel=1e-6)  # 0.669
 
 
 def test_several_packings_calibrate_their_mean(tmp_path):
