@@ -1552,7 +1552,8 @@ def save_brazilian_check(path, dim: int, checks: list, disc_diameter: float,
     """Replace the Brazilian check of the stored ``calibrated.<dim>d`` record of the material
     file ``path`` by ``checks`` (:func:`brazilian_check` on one or more packings of the stored
     element parameters: their mean) on a disc of ``disc_diameter`` [m] stopped at
-    ``disc_drop``; the record's specimen takes the disc. Returns the new check."""
+    ``disc_drop``; the record's specimen takes the disc, and the calibration's own disc check
+    time leaves its ``run``. Returns the new check."""
     offsets = [c["crack_start_offset"] for c in checks if c.get("crack_start_offset") is not None]
     check = _brazilian_block({
         "tensile_strength": np.mean([c["tensile_strength"] for c in checks]),
@@ -1567,6 +1568,7 @@ def save_brazilian_check(path, dim: int, checks: list, disc_diameter: float,
         rec["specimen"].pop("disc_thickness", None)
         if disc_thickness is not None:
             rec["specimen"]["disc_thickness"] = float(disc_thickness)
+        (rec.get("run") or {}).pop("check_wall_time_s", None)  # the old disc's, not this one's
     _update_calibrated(path, update)
     return check
 

@@ -161,6 +161,14 @@ def test_a_new_brazilian_check_replaces_the_stored_one(tmp_path):
     assert after["2d"]["specimen"]["disc_drop"] == 0.9
     assert after["2d"]["element"] == before["2d"]["element"]
     assert after["3d"] == before["3d"]
+    # the time of the calibration's own check described another disc: it goes
+    clay = tmp_path / "stiff_clay.yaml"
+    clay.write_text((LIBRARY_DIR / "stiff_clay.yaml").read_text().replace(
+        "      jobs: 1\n", "      check_wall_time_s: 33.4\n      jobs: 1\n", 1))
+    assert load_material(clay).calibrated["3d"]["run"]["check_wall_time_s"] == 33.4
+    C.save_brazilian_check(clay, 3, checks, 0.6, 0.8, 0.1)
+    run = load_material(clay).calibrated["3d"]["run"]
+    assert "check_wall_time_s" not in run and run["wall_time_s"] == 223.7
 
 
 def test_the_brazilian_check_and_the_tensile_test_are_stored_with_the_calibration(tmp_path):
