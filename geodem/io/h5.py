@@ -11,10 +11,10 @@ Layout (after H5MD 1.1, https://www.nongnu.org/h5md/)::
     attributes of /                config (resolved YAML), config_hash, workflow, status, ...
 
 Every time-dependent dataset is chunked and grows along its first axis. Values are buffered in
-memory and written by :meth:`H5Writer.flush` (the runner flushes at least every couple of seconds,
-after every frame and before every checkpoint), which also flushes the file: a killed run leaves a
-readable file holding everything up to the last flush. :meth:`H5Writer.truncate` drops the
-entries after a step (resuming from a checkpoint).
+memory and written by :meth:`H5Writer.flush` (the runner flushes every few seconds, keeping the
+writes near 1 % of the run, after every frame and before every checkpoint), which also flushes
+the file: a killed run leaves a readable file holding everything up to the last flush.
+:meth:`H5Writer.truncate` drops the entries after a step (resuming from a checkpoint).
 """
 from __future__ import annotations
 
@@ -35,6 +35,7 @@ class H5Writer:
         self.f = h5py.File(self.path, mode)
         self._series: dict[str, h5py.Group] = {}
         self._buf: dict[str, list] = {}
+        self._handles: dict[str, tuple] = {}
         if mode == "w":
             h = self.f.create_group("h5md")
             h.attrs["version"] = np.array(H5MD_VERSION, np.int32)
@@ -98,17 +99,25 @@ class H5Writer:
         for path, buf in self._buf.items():
             if not buf:
                 continue
-            g = self._series[path]
-            n0 = g["step"].shape[0]
+            value, step, time = self._datasets(path)
+            n0 = step.shape[0]
             n1 = n0 + len(buf)
-            vals = np.stack([b[2] for b in buf]).astype(g["value"].dtype, copy=False)
-            for name, data in (("value", vals), ("step", np.array([b[0] for b in buf])),
-                               ("time", np.array([b[1] for b in buf]))):
-                ds = g[name]
+            vals = np.stack([b[2] for b in buf]).astype(value.dtype, copy=False)
+            for ds, data in ((value, vals), (step, np.array([b[0] for b in buf])),
+                             (time, np.array([b[1] for b in buf]))):
                 ds.resize((n1,) + ds.shape[1:])
                 ds[n0:n1] = data
             buf.clear()
         self.f.flush()
+
+    def _datasets(self, path: str) -> tuple:
+        """The value, step and time datasets of series ``path``, looked up once (a lookup
+        by name costs about as much as the write of one sample)."""
+        ds = self._handles.get(path)
+        if ds is None:
+            g = self._series[path]
+            ds = self._handles[path] = (g["value"], g["step"], g["time"])
+        return ds
 
     def truncate(self, max_step: int) -> None:
         """Drop every sample with ``step > max_step`` (resuming from a checkpoint)."""
