@@ -932,11 +932,11 @@ def friction_sigma3(spec) -> float:
     return FRICTION_CONFINEMENT * float(spec.targets["Cu"])
 
 
-def _triaxial_workflow(spec, el):
+def _triaxial_workflow(spec, el, pressures=None):
     """The friction test: the triaxial box of the calibration specimen's size and packing, at
-    sigma3 = 0 and :func:`friction_sigma3`, each stage to its peak. The strain rate keeps the
-    time to the unconfined peak near 64 wave transits of the specimen (1/s for the 75 MPa
-    sandstone, as workflows/triaxial.yaml)."""
+    sigma3 = 0 and :func:`friction_sigma3` (or at ``pressures`` [Pa]: one stage of it), each
+    stage to its peak. The strain rate keeps the time to the unconfined peak near 64 wave
+    transits of the specimen (1/s for the 75 MPa sandstone, as workflows/triaxial.yaml)."""
     t = spec.targets
     peak = float(t["Cu"]) / float(t["E"])
     c = math.sqrt(float(t["E"]) / float(t["rho"]))
@@ -948,7 +948,8 @@ def _triaxial_workflow(spec, el):
             "model": model,
             "materials": {"rock": _material_block(spec, el)},
             "steps": [{"kind": "triaxial", "name": "triaxial",
-                       "confining_pressures": [0.0, friction_sigma3(spec)],
+                       "confining_pressures": (list(pressures) if pressures is not None
+                                               else [0.0, friction_sigma3(spec)]),
                        "strain_rate": rate, "max_strain": max(0.03, 6.0 * peak),
                        "drop": FRICTION_DROP}],
             "outputs": {"observables": {"every": 1000}}}
@@ -1099,19 +1100,51 @@ def measure_friction(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
     """Run the friction test (:func:`_triaxial_workflow`) with element parameters ``el``;
     returns ``phi`` [deg] (the two-point Mohr-Coulomb angle of the two peaks; ``math.inf``
     when the confined stage did not peak: the rock hardens there), the two peaks [Pa] and the
-    wall time."""
+    wall time. Each stage is a workflow of its own (``folder/unconfined``,
+    ``folder/confined``): the triaxial step starts every stage from the same state, so the
+    peaks are those of the two-stage workflow, and the stages of several packings can run
+    side by side (:func:`_friction_side_by_side`)."""
+    stages = [_friction_stage(spec, el, folder, k) for k in (0, 1)]
+    return _friction_result(spec, folder, stages)
+
+
+FRICTION_STAGES = ("unconfined", "confined")
+
+
+def _friction_stage(spec: CalibrationSpec, el: dict, folder: Path, k: int):
+    """Stage ``k`` of :func:`measure_friction` (0: sigma3 = 0, 1: :func:`friction_sigma3`) in
+    ``folder/unconfined`` or ``folder/confined``: its peak [Pa] (None: no peak) and wall time
+    [s]."""
+    t0 = time.perf_counter()
+    s3 = friction_sigma3(spec) if k else 0.0
+    r = _run(_triaxial_workflow(spec, el, [s3]), Path(folder) / FRICTION_STAGES[k],
+             spec.backend, spec.resume)
+    peak = (list(r.get("peak_strengths") or []) + [None])[0]
+    return (None if peak is None else float(peak)), time.perf_counter() - t0
+
+
+def _friction_result(spec: CalibrationSpec, folder: Path, stages) -> dict:
+    """:func:`measure_friction`'s result from its two stages ``(peak, wall)``."""
     from geodem.studies.friction import two_point_angle
 
-    t0 = time.perf_counter()
-    r = _run(_triaxial_workflow(spec, el), folder, spec.backend, spec.resume)
-    peaks = list(r.get("peak_strengths") or [None, None]) + [None, None]
-    p0, pc = peaks[0], peaks[1]
+    (p0, t0), (pc, tc) = stages
     if p0 is None:
         raise RuntimeError(f"the friction test in {folder} gave no unconfined peak")
-    phi = math.inf if pc is None else two_point_angle(float(p0), float(pc),
-                                                       friction_sigma3(spec))
-    return {"phi": phi, "peak_0": float(p0), "peak_c": None if pc is None else float(pc),
-            "sigma3": friction_sigma3(spec), "wall_time_s": time.perf_counter() - t0}
+    phi = math.inf if pc is None else two_point_angle(p0, pc, friction_sigma3(spec))
+    return {"phi": phi, "peak_0": p0, "peak_c": pc, "sigma3": friction_sigma3(spec),
+            "wall_time_s": t0 + tc}
+
+
+def _friction_side_by_side(calls, jobs: int) -> list:
+    """:func:`measure_friction` of each ``(spec, el, folder)`` in ``calls``, every stage a job
+    of its own on ``jobs`` processes, the confined stages (the longer) first: three packings on
+    two processes then take about three stages' time instead of two packings' (four stages).
+    The same runs as one after another, so the same numbers."""
+    parts = [(spec, el, folder, k) for k in (1, 0) for spec, el, folder in calls]
+    done = _side_by_side(_friction_stage, parts, jobs)
+    n = len(calls)
+    return [_friction_result(calls[i][0], calls[i][2], (done[n + i], done[i]))
+            for i in range(n)]
 
 
 def brazilian_check(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
@@ -1141,6 +1174,8 @@ def over_packings(fn, spec: CalibrationSpec, el: dict, folder: Path) -> dict:
     jobs = packing_jobs(spec)
     if fn is _MEASURE and jobs > 1:
         runs = _measure_side_by_side(calls, jobs)
+    elif fn is measure_friction and jobs > 1:
+        runs = _friction_side_by_side(calls, jobs)
     else:
         runs = _side_by_side(fn, calls, jobs)
     keys = [k for k, v in runs[0].items() if isinstance(v, (int, float)) and

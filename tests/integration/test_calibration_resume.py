@@ -69,3 +69,22 @@ def test_an_interrupted_run_says_how_to_go_on(spec_el, tmp_path, monkeypatch):
         C._run(C._tension_workflow(spec, el), tmp_path / "t", None)
     assert info.value.code == 130
     assert (tmp_path / "t" / "out" / "checkpoints").is_dir()
+
+
+def test_the_friction_stages_run_apart_read_the_two_stage_test(spec_el, tmp_path):
+    """measure_friction runs sigma3 = 0 and the confined stage as two workflows (so several
+    packings' stages share the processes): each stage starts from the same state as in the
+    one two-stage workflow, so both peaks are the same to the bit (loaded 4 x faster here, to
+    keep the test short)."""
+    spec, el = spec_el
+
+    def run(pressures, name):
+        doc = C._triaxial_workflow(spec, el, pressures)
+        step = doc["steps"][0]
+        step["strain_rate"] = 4.0 * step["strain_rate"]
+        return C._run(doc, tmp_path / name, None)["peak_strengths"]
+
+    both = run(None, "both")
+    s3 = C.friction_sigma3(spec)
+    assert both[1] > both[0] > 0.0
+    assert run([0.0], "unconfined") + run([s3], "confined") == both

@@ -8,6 +8,7 @@ from typer.testing import CliRunner
 
 import geodem.studies.calibrate as C
 from geodem.cli import app
+from geodem.materials_library import load_material
 
 
 @pytest.fixture
@@ -101,3 +102,38 @@ def test_resume_refuses_a_folder_of_another_rock_and_keeps_it(tmp_path, fake_run
                                      "--resume"])
     assert again.exit_code == 0
     assert " ".join(again.output.split()).count("(finished before, reused)") == 2
+
+
+def test_the_friction_stages_of_several_packings_share_the_processes(monkeypatch, tmp_path):
+    """With two processes, the friction tests of three packings run as six stage jobs, the
+    confined (longer) ones first, and each packing's phi comes from its own two peaks."""
+    from geodem.studies.friction import two_point_angle
+
+    order = []
+
+    def stage(spec, el, folder, k):
+        order.append((folder.name, k))
+        return (100.0e6 + spec.seed * 1e6 + (50.0e6 if k else 0.0)), 2.0 + k
+
+    def serial(fn, calls, jobs):
+        assert fn is stage and jobs == 2
+        return [fn(*a) for a in calls]
+
+    monkeypatch.setattr(C, "_friction_stage", stage)
+    monkeypatch.setattr(C, "_side_by_side", serial)
+    mat = load_material("sandstone")
+    spec = C.CalibrationSpec(targets=mat.values(), name="sandstone", packings=3, jobs=2)
+    out = C.over_packings(C.measure_friction, spec, {}, tmp_path)
+    assert order == [(f"packing_{s}", 1) for s in range(3)] + [(f"packing_{s}", 0)
+                                                                for s in range(3)]
+    s3 = C.friction_sigma3(spec)
+    for s, run in enumerate(out["per_packing"]):
+        assert run["peak_0"] == 100.0e6 + s * 1e6 and run["peak_c"] == 150.0e6 + s * 1e6
+        assert run["phi"] == two_point_angle(run["peak_0"], run["peak_c"], s3)
+        assert run["wall_time_s"] == 5.0
+    assert out["wall_time_s"] == 15.0
+    # one packing: its two stages one after the other, the same numbers
+    order.clear()
+    one = C.measure_friction(spec, {}, tmp_path / "packing_0")
+    assert order == [("packing_0", 0), ("packing_0", 1)]
+    assert one == out["per_packing"][0]
