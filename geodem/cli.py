@@ -687,6 +687,14 @@ def _rotation_structure(bond_moment, rolling_friction, rolling_stiffness=None,
 DISC_KEYS = ("disc_diameter", "disc_drop", "disc_thickness")
 
 
+def _stored_rate(specimen: dict) -> dict:
+    """The UCS loading rate a stored record was calibrated at (its specimen's
+    ``strain_rate``), as a :class:`CalibrationSpec` keyword: a check of the record loads as
+    its calibration did."""
+    rate = specimen.get("strain_rate")
+    return {} if rate is None else {"strain_rate": float(rate)}
+
+
 def _disc_options(diameter, drop, stored: dict | None = None, thickness=None) -> dict:
     """The Brazilian check's ``disc_diameter``, ``disc_drop`` and ``disc_thickness`` for a
     CalibrationSpec: the options given, else the stored specimen's, else the spec's defaults
@@ -1069,8 +1077,9 @@ def rock_cmd(
                                  d_mean=float(sp.get("d_mean", 0.01 if dim == 3 else 0.005)),
                                  ucs_size=size, seed=first + k, iterations=1,
                                  structure=structure, fit=fit or sp.get("fit", "window"),
-                                 resume=resume, **_disc_options(disc_diameter, disc_drop, sp,
-                                                                disc_thickness))
+                                 resume=resume, **_stored_rate(sp),
+                                 **_disc_options(disc_diameter, disc_drop, sp,
+                                                 disc_thickness))
                  for k in range(packings)]
     except ValueError as exc:
         _fail(f"--packing / --bond-gap / --bond-weibull / --bond-moment: {exc}", USER_ERROR)

@@ -85,6 +85,12 @@ def test_the_rocks_own_record_another_recipe_or_a_far_one_is_not_taken(tmp_path)
     near = record_file(tmp_path, "near", rec, dict(at_target, nu=TARGETS["nu"] + 0.02))
     nearer = record_file(tmp_path, "nearer", rec, dict(at_target, nu=TARGETS["nu"] - 0.01))
     assert C.library_start(other, names=[far_nu, near, nearer, turning])[1] == nearer
+    # the UCS loading rate: 0.2 /s (the library's) reads as 0.5 /s, 2 /s does not
+    slower = record_file(tmp_path, "slower", rec, at_target, strain_rate=0.2)
+    faster = record_file(tmp_path, "faster", rec, at_target, strain_rate=2.0)
+    assert other.strain_rate == 0.5
+    assert C.library_start(other, names=[faster]) is None
+    assert C.library_start(other, names=[faster, slower])[1] == slower
 
 
 def test_a_start_from_a_neighbouring_rock_converges_sooner(tmp_path):

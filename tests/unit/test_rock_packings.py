@@ -137,3 +137,25 @@ def test_the_friction_stages_of_several_packings_share_the_processes(monkeypatch
     one = C.measure_friction(spec, {}, tmp_path / "packing_0")
     assert order == [("packing_0", 0), ("packing_0", 1)]
     assert one == out["per_packing"][0]
+
+
+def test_a_check_loads_the_record_at_its_calibration_rate(tmp_path, monkeypatch, fake_runs):
+    """`geodem rock` measures a stored record with the UCS loading rate it was calibrated at
+    (the library's 0.2 /s), not the default of new calibrations (0.5 /s), and a finished
+    packing measured at another rate is not passed off as this one on --resume."""
+    seen = []
+    measure = C.measure  # the made-up one
+
+    def spy(spec, el, folder):
+        seen.append(spec.strain_rate)
+        return measure(spec, el, folder)
+
+    monkeypatch.setattr(C, "measure", spy)
+    mat = load_material("sandstone")
+    stored = mat.calibrated["2d"]["specimen"]["strain_rate"]
+    res = CliRunner().invoke(app, ["rock", "sandstone", "-o", str(tmp_path / "r")])
+    assert res.exit_code == 0, res.output
+    new = C.CalibrationSpec(targets=mat.values())
+    assert seen == [stored] and stored != new.strain_rate
+    old = C.CalibrationSpec(targets=mat.values(), strain_rate=stored)
+    assert C.rock_inputs(old, {}, False) != C.rock_inputs(new, {}, False)
