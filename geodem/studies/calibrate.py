@@ -349,9 +349,8 @@ class CalibrationSpec:
     disc_drop: float | None = None
     distri_rate: float = 0.2
     seed: int = 0
-    # the UCS test's loading rate [1/s]: 2.3-2.5 x fewer time steps than the 0.2 /s the
-    # library was first calibrated at, the same response (SAME_RATE_FACTOR)
-    strain_rate: float = 0.5
+    # the UCS test's loading rate [1/s]; None: :func:`ucs_strain_rate` from the targets
+    strain_rate: float | None = None
     max_strain: float = 0.02  # the same sample grid as workflows/ucs.yaml
     iterations: int = 8
     tolerances: dict = field(default_factory=lambda: dict(TOLERANCES))
@@ -492,11 +491,37 @@ def prior_guess(spec: CalibrationSpec) -> dict:
 LIBRARY_START_REACH = {"nu": 0.1, "ratio": math.log(2.0)}
 #: what a library record must share with a calibration to start it: the specimens' recipe
 _SAME_SPECIMEN = ("d_mean", "fit", "max_strain")
-#: UCS loading rates within this factor of each other count as the same recipe: 0.2 and
-#: 0.5 /s gave the same E (0.2 %), nu (0.005) and, over three packings, UCS within the
-#: packings' scatter (-2.2 %, +1.3 %, +3.0 % for the 3-D marble, granite and sandstone;
-#: docs/calibration.md, "The UCS test's strain rate")
+#: UCS loading rates within this factor of each other count as the same recipe where both
+#: give the peak in UCS_TRANSITS wave transits or more: 0.2 and 0.5 /s gave the same E
+#: (0.3 %), nu (0.005) and, over three packings, UCS within the packings' scatter (-2.2 to
+#: +3.0 %; 3-D marble, granite, sandstone; 2-D granite, sandstone; docs/calibration.md,
+#: "The UCS test's strain rate")
 SAME_RATE_FACTOR = 2.5
+#: the UCS test loads at the rate that reaches the target peak strain Cu / E in this many
+#: wave transits of the specimen (L / sqrt(E / rho)), within UCS_RATE_RANGE [1/s]: the
+#: marble's 0.5 /s (78 transits) read as its 0.2 /s; the 2-D stiff clay's 0.5 /s (6
+#: transits) read +6 % UCS and +3 % E over its 0.2 /s (16 transits), so no rock loads faster
+#: than before where that leaves it fewer transits
+UCS_TRANSITS = 64.0
+UCS_RATE_RANGE = (0.2, 0.5)
+
+
+def quasi_static_rate(spec, transits: float, low: float, high: float) -> float:
+    """The strain rate [1/s] that reaches the target peak strain ``Cu / E`` in ``transits``
+    wave transits of the specimen's length ``L`` (``c = sqrt(E / rho)``), clipped to
+    [``low``, ``high``]: ``rate = (Cu / E) c / (transits L)``."""
+    t = spec.targets
+    peak = float(t["Cu"]) / float(t["E"])
+    c = math.sqrt(float(t["E"]) / float(t["rho"]))
+    return float(np.clip(peak * c / (transits * max(spec.ucs_size)), low, high))
+
+
+def ucs_strain_rate(spec) -> float:
+    """The calibration's UCS loading rate [1/s]: ``spec.strain_rate``, else
+    :func:`quasi_static_rate` at :data:`UCS_TRANSITS` within :data:`UCS_RATE_RANGE`."""
+    if spec.strain_rate is not None:
+        return float(spec.strain_rate)
+    return quasi_static_rate(spec, UCS_TRANSITS, *UCS_RATE_RANGE)
 
 
 def _same_recipe(spec: CalibrationSpec, specimen: dict) -> bool:
@@ -513,8 +538,8 @@ def _same_recipe(spec: CalibrationSpec, specimen: dict) -> bool:
 
     if not all(close(specimen.get(k), getattr(spec, k)) for k in _SAME_SPECIMEN):
         return False
-    rate = float(specimen.get("strain_rate") or 0.0)
-    if not 0.0 < rate <= SAME_RATE_FACTOR * spec.strain_rate <= SAME_RATE_FACTOR ** 2 * rate:
+    rate, ours = float(specimen.get("strain_rate") or 0.0), ucs_strain_rate(spec)
+    if not 0.0 < rate <= SAME_RATE_FACTOR * ours <= SAME_RATE_FACTOR ** 2 * rate:
         return False
     if [float(x) for x in specimen.get("ucs_size") or ()] != [float(x) for x in spec.ucs_size]:
         return False
@@ -924,7 +949,7 @@ def _specimen_workflow(spec, el, what, step):
 
 def _ucs_workflow(spec, el):
     return _specimen_workflow(spec, el, "uniaxial compression", {
-        "kind": "uniaxial", "name": "ucs", "strain_rate": spec.strain_rate,
+        "kind": "uniaxial", "name": "ucs", "strain_rate": ucs_strain_rate(spec),
         "max_strain": spec.max_strain, "drop": 0.7, "fit": spec.fit})
 
 
@@ -948,10 +973,8 @@ def _triaxial_workflow(spec, el, pressures=None):
     sigma3 = 0 and :func:`friction_sigma3` (or at ``pressures`` [Pa]: one stage of it), each
     stage to its peak. The strain rate keeps the time to the unconfined peak near 64 wave
     transits of the specimen (1/s for the 75 MPa sandstone, as workflows/triaxial.yaml)."""
-    t = spec.targets
-    peak = float(t["Cu"]) / float(t["E"])
-    c = math.sqrt(float(t["E"]) / float(t["rho"]))
-    rate = float(np.clip(peak * c / (64.0 * max(spec.ucs_size)), 0.05, 1.0))
+    peak = float(spec.targets["Cu"]) / float(spec.targets["E"])
+    rate = quasi_static_rate(spec, 64.0, 0.05, 1.0)
     model = {"type": "triaxial_box", "dim": spec.dim, "size": list(spec.ucs_size),
              "d_mean": spec.d_mean, "distri_rate": spec.distri_rate, "material": "rock"}
     return {"metadata": {"name": "calibration_triaxial", "seed": spec.seed,
@@ -1281,7 +1304,8 @@ def rock_inputs(spec: CalibrationSpec, el: dict, friction: bool) -> dict:
     carries the same is reused by ``--resume``."""
     doc = {"material": spec.name, "dim": spec.dim, "seed": spec.seed, "element": el,
            "structure": spec.structure, "targets": spec.targets, "d_mean": spec.d_mean,
-           "ucs_size": list(spec.ucs_size), "fit": spec.fit, "strain_rate": spec.strain_rate,
+           "ucs_size": list(spec.ucs_size), "fit": spec.fit,
+           "strain_rate": ucs_strain_rate(spec),
            "disc_diameter": spec.disc_diameter, "disc_thickness": spec.disc_thickness,
            "disc_drop": spec.disc_drop, "friction": bool(friction)}
     return json.loads(json.dumps(doc, default=float))
@@ -1494,7 +1518,7 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
                         if spec.disc_thickness is not None else {}),
                      "distri_rate": spec.distri_rate,
                      "seed": spec.seed, "packings": spec.packings, "fit": spec.fit,
-                     "strain_rate": spec.strain_rate,
+                     "strain_rate": ucs_strain_rate(spec),
                      "max_strain": spec.max_strain, "tensile_test": "direct_tension",
                      "friction_test": ({"kind": "triaxial", "sigma3_over_Cu":
                                         FRICTION_CONFINEMENT} if use_friction else None)},

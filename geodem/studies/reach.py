@@ -39,6 +39,11 @@ NU_LIMIT = {2: 1.0, 3: 0.5}
 CHARTED_STRUCTURE = {"packing": "isotropic"}
 
 
+#: the UCS loading rate of the charted grid [1/s]: its elements span strengths and stiffnesses
+#: far from the sandstone's targets, so the grid keeps the slowest calibration rate (the one
+#: the stored charts were measured at) rather than one from the targets
+REACH_STRAIN_RATE = 0.2
+
 def _base_element(dim: int) -> dict:
     """Levels (kn, F_t) of the library sandstone's calibration: the region does not depend
     on them (exact scalings), only on the shape variables."""
@@ -71,7 +76,8 @@ def reach_study(dim: int, out_dir, s_values=None, rho_values=None, backend=None,
     size = (0.1, 0.1, 0.2) if dim == 3 else (0.1, 0.2)
     spec = CalibrationSpec(targets=targets, name="reach", dim=dim,
                            d_mean=0.01 if dim == 3 else 0.005, ucs_size=size, iterations=1,
-                           backend=backend, structure=dict(CHARTED_STRUCTURE))
+                           backend=backend, structure=dict(CHARTED_STRUCTURE),
+                           strain_rate=REACH_STRAIN_RATE)
     ft = base["kn_per_d"] * base["xb_per_d"]
     points = []
     t0 = time.perf_counter()

@@ -665,3 +665,17 @@ def test_the_3d_turning_angle_plane_reads_both_slopes():
     phi_bad[-1] += 3.0  # lower mu, higher angle
     assert C._phi_plane(X, phi_bad, (18.5, 7.4))[1][1] == C.SLOPES["phi_lnmu_at_rho"][0]
     assert C._phi_plane(X, np.full(3, np.nan), (18.5, 7.4)) is None
+
+
+@pytest.mark.parametrize("E, Cu, rho, rate", [
+    (10e9, 50e6, 2500.0, 0.5),                                   # 0.781 /s, capped
+    (4e9, 20e6, 2500.0, 5e-3 * math.sqrt(4e9 / 2500.0) / 12.8),  # 0.494 /s
+    (50e6, 0.2e6, 2000.0, 0.2)])                                 # 0.049 /s, floored
+def test_the_ucs_test_loads_to_its_peak_in_64_wave_transits(E, Cu, rho, rate):
+    """rate = (Cu / E) sqrt(E / rho) / (64 L), L = 0.2 m, within 0.2-0.5 /s; a given
+    strain_rate is kept."""
+    targets = {"E": E, "nu": 0.25, "Cu": Cu, "Tu": Cu / 10, "rho": rho, "mu_i": 0.6}
+    spec = C.CalibrationSpec(targets=targets, ucs_size=(0.1, 0.2))
+    assert C.ucs_strain_rate(spec) == pytest.approx(rate, rel=1e-12)
+    assert C._ucs_workflow(spec, {})["steps"][0]["strain_rate"] == pytest.approx(rate)
+    assert C.ucs_strain_rate(C.replace(spec, strain_rate=0.3)) == 0.3
