@@ -1117,17 +1117,23 @@ def _measured(u: dict, d: dict, folder: Path, wall: float) -> dict:
             "fits": {k: r[k] for k in ("window", "elastic") if k in r}}
 
 
-def _measure_side_by_side(calls, jobs: int) -> list:
-    """:func:`measure` of each ``(spec, el, folder)`` in ``calls``, with every packing's UCS and
-    tension runs as separate jobs on ``jobs`` processes, the UCS runs (the longer) first: three
-    packings on two processes then take about two UCS runs' time instead of two packings'
-    (UCS and tension). The same runs as one after another, so the same numbers."""
-    parts = [(spec, el, folder, part) for part in ("ucs", "tension")
-             for spec, el, folder in calls]
-    done = _side_by_side(_measure_part, parts, jobs)
+def _parts_side_by_side(part_fn, calls, parts, jobs: int) -> list:
+    """``part_fn(spec, el, folder, part)`` for every ``(spec, el, folder)`` of ``calls`` and
+    every ``part`` of ``parts`` (longest first), each a job of its own on ``jobs`` processes;
+    returns, per call, its parts' results in the order of ``parts``. Jobs finer than a
+    packing keep two processes busy: three packings of two parts take about three parts'
+    time instead of four. The same runs as one after another, so the same numbers."""
+    done = _side_by_side(part_fn, [(spec, el, folder, part) for part in parts
+                                   for spec, el, folder in calls], jobs)
     n = len(calls)
-    return [_measured(done[k][0], done[n + k][0], calls[k][2], done[k][1] + done[n + k][1])
-            for k in range(n)]
+    return [[done[j * n + k] for j in range(len(parts))] for k in range(n)]
+
+
+def _measure_side_by_side(calls, jobs: int) -> list:
+    """:func:`measure` of each ``(spec, el, folder)`` in ``calls``, every packing's UCS and
+    tension runs as separate jobs, the UCS runs (the longer) first."""
+    return [_measured(u[0], d[0], call[2], u[1] + d[1]) for call, (u, d) in
+            zip(calls, _parts_side_by_side(_measure_part, calls, ("ucs", "tension"), jobs))]
 
 
 def measure_friction(spec: CalibrationSpec, el: dict, folder: Path) -> dict:
@@ -1171,14 +1177,10 @@ def _friction_result(spec: CalibrationSpec, folder: Path, stages) -> dict:
 
 def _friction_side_by_side(calls, jobs: int) -> list:
     """:func:`measure_friction` of each ``(spec, el, folder)`` in ``calls``, every stage a job
-    of its own on ``jobs`` processes, the confined stages (the longer) first: three packings on
-    two processes then take about three stages' time instead of two packings' (four stages).
-    The same runs as one after another, so the same numbers."""
-    parts = [(spec, el, folder, k) for k in (1, 0) for spec, el, folder in calls]
-    done = _side_by_side(_friction_stage, parts, jobs)
-    n = len(calls)
-    return [_friction_result(calls[i][0], calls[i][2], (done[n + i], done[i]))
-            for i in range(n)]
+    of its own, the confined stages (the longer) first."""
+    return [_friction_result(call[0], call[2], (unconfined, confined))
+            for call, (confined, unconfined) in
+            zip(calls, _parts_side_by_side(_friction_stage, calls, (1, 0), jobs))]
 
 
 def brazilian_check(spec: CalibrationSpec, el: dict, folder: Path) -> dict:

@@ -44,6 +44,7 @@ CHARTED_STRUCTURE = {"packing": "isotropic"}
 #: the stored charts were measured at) rather than one from the targets
 REACH_STRAIN_RATE = 0.2
 
+
 def _base_element(dim: int) -> dict:
     """Levels (kn, F_t) of the library sandstone's calibration: the region does not depend
     on them (exact scalings), only on the shape variables."""
