@@ -716,9 +716,13 @@ class Triaxial(StepBase):
     max_strain: float = F(0.01, gt=0, le=0.2, description="Stop a test at this axial strain")
     drop: float = F(0.5, gt=0, lt=1,
                     description="Stop a test when the deviator sigma1 - sigma3 falls below drop "
-                                "x its peak after the peak, at 1.5 x the peak strain or more "
-                                "(small specimens lose 20-30 % in one crack burst and recover: "
-                                "keep it well below 0.8)")
+                                "x its peak after the peak, at drop_strain x the peak strain or "
+                                "more (small specimens lose 20-30 % in one crack burst and "
+                                "recover: keep it well below 0.8)")
+    drop_strain: float = F(1.5, ge=1, le=10,
+                           description="The drop stops a test only at this many times the "
+                                       "axial strain of its peak or more (a burst right after "
+                                       "the peak may recover)")
     samples: int = F(200, ge=20, le=100000, description="Samples per test over max_strain")
     tolerance: float = F(0.02, gt=0, le=0.5,
                          description="Consolidation ends when every wall stress is within "
@@ -1033,8 +1037,7 @@ class _Run:
                     csv.writer(fh).writerow(row)
                 if row[6] > peak:
                     peak, ipeak = row[6], len(rows) - 1
-            if due and len(rows) - ipeak >= 3 and len(rows) >= 10 and peak > 0 \
-                    and rows[-1][6] < p.drop * peak and rows[-1][4] >= 1.5 * rows[ipeak][4]:
+            if due and past_peak(rows, ipeak, p.drop, p.drop_strain):
                 reason = "drop"
                 break
             if s >= lmax:
@@ -1182,6 +1185,17 @@ class _Run:
 SOFTENED = 0.95  # a stage stopped by max_strain has peaked if q fell below this x its maximum
 #: overlap (x the smaller radius) at which a stage stops as crushed; the engine fails at 0.5
 CRUSHED_OVERLAP = 0.35
+
+
+def past_peak(rows, ipeak: int, drop: float, drop_strain: float) -> bool:
+    """Whether a stage's samples ``rows`` (curve columns: axial strain at 4, deviator at 6)
+    stop it: its last deviator below ``drop`` x the peak at ``rows[ipeak]``, at least two
+    samples and ``drop_strain`` x the peak's axial strain after it (a burst right after the
+    peak of a small specimen can recover past it), and ten samples in all."""
+    if len(rows) - ipeak < 3 or len(rows) < 10:
+        return False
+    peak, last = rows[ipeak], rows[-1]
+    return peak[6] > 0 and last[6] < drop * peak[6] and last[4] >= drop_strain * peak[4]
 
 
 def has_peaked(reason: str, dev, i: int) -> bool:

@@ -2,7 +2,7 @@
 .has_peaked); a curve still hardening at max_strain has none."""
 import numpy as np
 
-from geodem.cases.triaxial import SOFTENED, has_peaked
+from geodem.cases.triaxial import SOFTENED, has_peaked, past_peak
 
 
 def test_a_curve_still_hardening_at_max_strain_has_no_peak():
@@ -25,3 +25,39 @@ def test_softening_after_the_maximum_is_a_peak():
 def test_a_stage_stopped_by_the_post_peak_drop_has_peaked():
     q = np.array([0.0, 30.0, 12.0])
     assert has_peaked("drop", q, 1)
+
+
+def _rows(strain, q):
+    """Curve rows as the triaxial step writes them: axial strain at 4, deviator at 6."""
+    return [[0, 0.0, i, 0.0, e, 0.0, d] for i, (e, d) in enumerate(zip(strain, q))]
+
+
+# a peak of 30 at strain 1.0, a burst to 27 (10 % below) at 1.1 x its strain, recovering past
+# it: the drop rule must wait for drop_strain x the peak strain before it believes the burst
+STRAIN = [0.1 * i for i in range(1, 10)] + [1.0, 1.05, 1.1, 1.15]
+BURST = [3.0 * i for i in range(1, 10)] + [30.0, 29.0, 28.0, 27.0]
+
+
+def test_the_drop_stops_a_stage_only_past_drop_strain_x_the_peak_strain():
+    rows = _rows(STRAIN, BURST)
+    ipeak = 9
+    assert past_peak(rows, ipeak, 0.95, 1.1)       # 27 < 0.95 x 30 at 1.15 x the peak strain
+    assert not past_peak(rows, ipeak, 0.95, 1.25)  # too soon after the peak
+    assert not past_peak(rows, ipeak, 0.85, 1.1)   # 27 > 0.85 x 30
+    assert past_peak(_rows(STRAIN + [1.25], BURST + [28.4]), ipeak, 0.95, 1.25)
+
+
+def test_the_drop_needs_two_samples_after_the_peak_and_ten_in_all():
+    assert not past_peak(_rows(STRAIN[:11], BURST[:11]), 9, 0.95, 1.0)   # one after it
+    assert past_peak(_rows(STRAIN[:12], BURST[:12]), 9, 0.95, 1.0)
+    short = _rows([1.0, 1.1, 1.2, 1.3], [30.0, 20.0, 20.0, 20.0])
+    assert not past_peak(short, 0, 0.95, 1.0)
+
+
+def test_the_calibration_stops_its_friction_stages_at_1_25_x_the_peak_strain():
+    from geodem.studies import calibrate as C
+
+    spec = C.CalibrationSpec(name="rock", dim=2, targets={"E": 15e9, "nu": 0.2, "Cu": 75e6,
+                                                           "Tu": 4e6, "mu_i": 0.7, "rho": 2500.0})
+    step = C._triaxial_workflow(spec, {"kn_per_d": 1.0}, [0.0])["steps"][0]
+    assert (step["drop"], step["drop_strain"]) == (0.95, 1.25)
