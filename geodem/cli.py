@@ -573,6 +573,18 @@ def _build_progress(err: Console):
     return show
 
 
+def _frames_drawn(err: Console):
+    """``progress(i, n)`` of an animation's pictures, on one line of ``err`` when it is a
+    terminal; None (silent) otherwise."""
+    if not err.is_terminal:
+        return None
+
+    def tick(i: int, n: int) -> None:
+        err.print(f"drawn {i} of {n} frames", end="\r" if i < n else "\n", highlight=False)
+
+    return tick
+
+
 def _print_run_summary(con, s: dict, out: str) -> None:
     if not con.is_terminal:
         con = Console(width=120)
@@ -1584,20 +1596,21 @@ def advise_cmd(
 
 
 @app.command("view", help=(
-    "Draw one frame of a run to a PNG (pyvista, off-screen).\n\n"
+    "Draw one frame of a run to a PNG, or its frames to a GIF (pyvista, off-screen).\n\n"
     "Reads RUN_DIR/output.h5: the elements of frame K (spheres in 3-D, discs seen from above in "
     "2-D) coloured by --color, and the bonds broken up to that frame as lines (red tensile, blue "
-    "shear, grey joint). Writes RUN_DIR/view_frame_K.png unless -o names another file. Needs "
-    "the 'vis' extra. Exit 0, or 2 for a missing run, an unknown frame or a bad option. See "
-    "docs/view.md."))
+    "shear, grey joint). Writes RUN_DIR/view_frame_K.png unless -o names another file; -o "
+    "FILE.gif draws the run's frames (at most --max-frames) into an animation with one camera "
+    "and one colour scale. Needs the 'vis' extra. Exit 0, or 2 for a missing run, an unknown "
+    "frame or a bad option. See docs/view.md."))
 @_guard
 def view_cmd(
     run_dir: Annotated[str, typer.Argument(metavar="RUN_DIR", help="Run directory.")],
     frame: Annotated[int, typer.Option(
         "--frame", "-f", help="Frame index (0 the first, -1 the last).")] = -1,
     output: Annotated[Optional[str], typer.Option(
-        "-o", "--output", metavar="FILE.png", help="Picture to write. \\[default: "
-        "RUN_DIR/view_frame_K.png]")] = None,
+        "-o", "--output", metavar="FILE.png|FILE.gif", help="Picture to write; a .gif is an "
+        "animation of the run's frames. \\[default: RUN_DIR/view_frame_K.png]")] = None,
     color: Annotated[str, typer.Option(
         "--color", help="Colour the elements by displacement, velocity, radius or none.")] =
         "displacement",
@@ -1608,8 +1621,13 @@ def view_cmd(
     show: Annotated[bool, typer.Option(
         "--show", help="Open an interactive window (needs a display) and save on close.")] =
         False,
+    fps: Annotated[float, typer.Option(
+        "--fps", help="Animation: frames per second (0.1-60).")] = 4.0,
+    max_frames: Annotated[int, typer.Option(
+        "--max-frames", help="Animation: the most frames drawn, spread evenly over the run's "
+        "(2-10000).")] = 120,
 ):
-    from geodem.io.view import ViewError, render_frame
+    from geodem.io.view import ViewError, render_animation, render_frame
 
     try:
         w, h = (int(v) for v in size.lower().split("x"))
@@ -1618,6 +1636,17 @@ def view_cmd(
     except ValueError:
         raise ViewError(f"--size {size}: allowed: WIDTHxHEIGHT in pixels, 16 to 8192 each "
                         "(e.g. 1200x900)") from None
+    if output and output.lower().endswith(".gif"):
+        if show:
+            raise ViewError("--show: allowed with a .png picture only, not with an animation")
+        r = render_animation(run_dir, output, color=color, size=(w, h), opacity=opacity,
+                             fps=fps, max_frames=max_frames, progress=_frames_drawn(_err()))
+        c = r["cracks"]
+        sys.stdout.write(f"wrote {r['path']}: {r['frames']} of the run's {r['frames_in_run']} "
+                         f"frames (steps {r['steps'][0]:,} to {r['steps'][1]:,}), "
+                         f"{r['elements']:,} elements; at the last {c['tensile']} tensile / "
+                         f"{c['shear']} shear / {c['joint']} joint cracks\n")
+        return
     r = render_frame(run_dir, frame=frame, output=output, color=color, size=(w, h),
                      opacity=opacity, show=show)
     c = r["cracks"]

@@ -68,7 +68,7 @@ model and the ``column_collapse`` step.
   ``collapse_initial.vtp``, ``collapse_runout.png`` (normalised runout against aspect ratio
   with the law; with several packings every packing and the mean),
   ``collapse_history.png`` (fronts and kinetic energy against time) and ``collapse.gif``
-  (the collapse of column ``gif_column``; imageio, else Pillow, else skipped with the reason).
+  (the collapse of column ``gif_column``; Pillow, else imageio, else skipped with the reason).
 
 Only one ``column_collapse`` step per workflow: the file names above are fixed.
 
@@ -911,7 +911,7 @@ def plot_history(path, rows, cols, tau, n_ratios=None):
 
 
 def write_gif(path, frames, c, res, d):
-    """Animation of one collapse (imageio, else matplotlib's PillowWriter)."""
+    """Animation of one collapse (Pillow, else imageio)."""
     if pyplot() is None or not frames:
         return None
     data = [np.load(f) for f in frames]

@@ -35,7 +35,7 @@ def read_rows(path, step, ints=(), step_column: int = 0) -> list:
 # ============================================================================ pictures
 def frames_gif(path, items, figsize, draw, fps: float):
     """GIF of ``items`` (one frame each, drawn by ``draw(ax, item)`` on one figure of size
-    ``figsize``): imageio, else matplotlib's PillowWriter; None when there is nothing to draw or
+    ``figsize``): Pillow, else imageio; None when there is nothing to draw or
     nothing can draw it."""
     plt = pyplot()
     if plt is None or not items:

@@ -58,7 +58,7 @@
   Outputs: ``hydrofrac_curve.csv`` (per sample: injection pressure, cracks, injected mass,
   mass-balance error), ``hf_pressure.png`` (pore-pressure maps with cracks at ``frames``
   times), ``hf_history.png`` (injection pressure and cracks against time),
-  ``hf_animation.gif`` (``gif_frames`` frames; imageio, else matplotlib's PillowWriter, else
+  ``hf_animation.gif`` (``gif_frames`` frames; Pillow, else imageio, else
   skipped with the reason in summary.json).
 
 Fluid defaults: MatDEM's oil EOS (``k_f = 4.615e-5``, ``c_f = 870``): with water (bulk modulus
@@ -1016,8 +1016,7 @@ def plot_history(path, a, t0, breakdown, hw):
 
 
 def write_gif(path, frames, centre, R, d, ref):
-    """Animation of the pore-pressure maps: imageio if installed, else matplotlib's
-    PillowWriter; returns None (skipped) when neither can write a GIF."""
+    """Animation of the pore-pressure maps: Pillow if installed, else imageio; returns None (skipped) when neither can write a GIF."""
     if pyplot() is None or not frames:
         return None
     data = [np.load(f) for f in frames]

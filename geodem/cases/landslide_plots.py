@@ -179,7 +179,7 @@ def snapshots(path, dim, ref, r, slide, frames, n, info):
 
 
 def animation(path, dim, ref, r, slide, frames, n, info):
-    """GIF of the runout (imageio if installed, else Pillow)."""
+    """GIF of the runout (Pillow if installed, else imageio)."""
     plt = pyplot()
     if plt is None or not frames:
         return None

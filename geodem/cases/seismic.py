@@ -524,7 +524,7 @@ def plot_reference(path, ref, pulse):
 
 
 def write_gif(path, frames, d, vmax):
-    """Animation of the particle-speed maps (imageio, else matplotlib's PillowWriter; None when
+    """Animation of the particle-speed maps (Pillow, else imageio; None when
     neither can write a GIF)."""
     if pyplot() is None or not frames:
         return None

@@ -988,7 +988,7 @@ def plot_energy(path, a, res):
 
 
 def write_gif(path, frames):
-    """Animation of the snapshots (imageio, else matplotlib's PillowWriter)."""
+    """Animation of the snapshots (Pillow, else imageio)."""
     return frames_gif(path, frames, (6.0, 2.4), lambda ax, f: _draw(ax, np.load(f)), fps=7)
 
 

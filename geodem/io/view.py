@@ -129,6 +129,86 @@ def frame_meshes(fr: Frame):
     return elements, cracks
 
 
+def _picture_path(out: Path, suffix: str) -> Path:
+    if out.suffix.lower() != suffix:
+        raise ViewError(f"-o {out}: allowed: a .png file (one frame) or a .gif file (an "
+                        "animation of the run's frames)")
+    if not out.parent.is_dir():
+        raise ViewError(f"-o {out}: the folder {out.parent} does not exist")
+    return out
+
+
+def _opacity(fr: Frame, opacity: float | None) -> float:
+    """The elements' opacity: ``opacity``, else 1 in 2-D and 0.2 in 3-D when cracks are drawn
+    (so the cracks inside the body show)."""
+    if opacity is None:
+        opacity = 0.2 if (fr.dim == 3 and len(fr.crack_rows)) else 1.0
+    if not 0.0 <= opacity <= 1.0:
+        raise ViewError(f"--opacity {opacity}: allowed: 0 to 1")
+    return opacity
+
+
+def _draw(plotter, fr: Frame, opacity: float, size, clim=None) -> dict:
+    """Add frame ``fr`` to ``plotter``: the elements (spheres, or points above
+    ``GLYPH_LIMIT``) coloured by the frame's field over ``clim`` (default: its own range),
+    the cracks by type and a caption. Returns the cracks drawn by type."""
+    import pyvista as pv
+
+    elements, cracks = frame_meshes(fr)
+    scalar = "field" if fr.field is not None else None
+    font = max(8, int(size[1] / 40))
+    bar = ({"title": fr.label, "color": "black", "vertical": True, "position_x": 0.8,
+            "position_y": 0.15, "height": 0.7, "width": 0.04, "fmt": "%.2g",
+            "title_font_size": font, "label_font_size": font} if scalar else None)
+    look = {"scalars": scalar, "cmap": "viridis", "opacity": opacity,
+            "color": None if scalar else "tan", "scalar_bar_args": bar,
+            "show_scalar_bar": bool(scalar)}
+    if scalar and clim is not None:
+        look["clim"] = clim
+    if fr.x.shape[0] <= GLYPH_LIMIT and np.isfinite(fr.r).all():
+        res = 12 if fr.x.shape[0] <= 20_000 else 6
+        balls = elements.glyph(scale="radius", orient=False, factor=1.0,
+                               geom=pv.Sphere(radius=1.0, theta_resolution=res,
+                                              phi_resolution=res))
+        plotter.add_mesh(balls, smooth_shading=True, **look)
+    else:  # many elements: screen-space spheres of one size
+        plotter.add_mesh(elements, render_points_as_spheres=True, point_size=3, **look)
+    counts = {}
+    for code, name in ((1, "tensile"), (2, "shear"), (0, "joint")):
+        sel = np.flatnonzero(fr.crack_types == code)
+        counts[name] = int(sel.size)
+        if sel.size:
+            plotter.add_mesh(cracks.extract_cells(sel), color=CRACK_COLORS[code], line_width=2,
+                             render_lines_as_tubes=False)
+    plotter.add_text(f"step {fr.step:,}   t = {fr.time:.4g} s   {fr.x.shape[0]:,} elements   "
+                     f"cracks: {counts['tensile']} tensile, {counts['shear']} shear",
+                     font_size=max(6, int(size[1] / 80)), color="black")
+    return counts
+
+
+def _plotter(size, show: bool = False):
+    import pyvista as pv
+
+    if not show:  # off-screen VTK first tries a display and warns when there is none
+        from vtkmodules.vtkCommonCore import vtkLogger
+
+        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
+    plotter = pv.Plotter(off_screen=not show, window_size=list(size))
+    plotter.set_background("white")
+    return plotter
+
+
+def _aim(plotter, dim: int, bounds=None) -> None:
+    """Seen from above in 2-D, isometric in 3-D; framing ``bounds`` (xmin, xmax, ymin, ymax,
+    zmin, zmax) when given, else what is drawn."""
+    if dim == 2:
+        plotter.view_xy()
+    else:
+        plotter.view_isometric()
+    if bounds is not None:
+        plotter.reset_camera(bounds=bounds)
+
+
 def render_frame(run_dir, frame: int = -1, output=None, color: str = "displacement",
                  size=(1200, 900), opacity: float | None = None, show: bool = False) -> dict:
     """Draw frame ``frame`` of ``run_dir`` to ``output`` (PNG; default
@@ -140,52 +220,12 @@ def render_frame(run_dir, frame: int = -1, output=None, color: str = "displaceme
     from geodem.extras import needs_extra
 
     fr = read_frame(run_dir, frame, color)  # the run and the frame first: clear errors
+    out = _picture_path(Path(output) if output else
+                        Path(run_dir) / f"view_frame_{fr.index}.png", ".png")
     with needs_extra("geodem view"):
-        import pyvista as pv
-    out = Path(output) if output else Path(run_dir) / f"view_frame_{fr.index}.png"
-    if out.suffix.lower() != ".png":
-        raise ViewError(f"-o {out}: allowed: a .png file")
-    if not out.parent.is_dir():
-        raise ViewError(f"-o {out}: the folder {out.parent} does not exist")
-    if opacity is None:
-        opacity = 0.2 if (fr.dim == 3 and len(fr.crack_rows)) else 1.0
-    if not 0.0 <= opacity <= 1.0:
-        raise ViewError(f"--opacity {opacity}: allowed: 0 to 1")
-    elements, cracks = frame_meshes(fr)
-    plotter = pv.Plotter(off_screen=not show, window_size=list(size))
-    plotter.set_background("white")
-    scalar = "field" if fr.field is not None else None
-    font = max(8, int(size[1] / 40))
-    bar = ({"title": fr.label, "color": "black", "vertical": True, "position_x": 0.8,
-            "position_y": 0.15, "height": 0.7, "width": 0.04, "fmt": "%.2g",
-            "title_font_size": font, "label_font_size": font} if scalar else None)
-    if fr.x.shape[0] <= GLYPH_LIMIT and np.isfinite(fr.r).all():
-        res = 12 if fr.x.shape[0] <= 20_000 else 6
-        balls = elements.glyph(scale="radius", orient=False, factor=1.0,
-                               geom=pv.Sphere(radius=1.0, theta_resolution=res,
-                                              phi_resolution=res))
-        plotter.add_mesh(balls, scalars=scalar, cmap="viridis", opacity=opacity,
-                         color=None if scalar else "tan", scalar_bar_args=bar,
-                         show_scalar_bar=bool(scalar), smooth_shading=True)
-    else:  # many elements: screen-space spheres of one size
-        plotter.add_mesh(elements, scalars=scalar, cmap="viridis", opacity=opacity,
-                         render_points_as_spheres=True, point_size=3,
-                         color=None if scalar else "tan", scalar_bar_args=bar,
-                         show_scalar_bar=bool(scalar))
-    counts = {}
-    for code, name in ((1, "tensile"), (2, "shear"), (0, "joint")):
-        sel = np.flatnonzero(fr.crack_types == code)
-        counts[name] = int(sel.size)
-        if sel.size:
-            plotter.add_mesh(cracks.extract_cells(sel), color=CRACK_COLORS[code], line_width=2,
-                             render_lines_as_tubes=False)
-    if fr.dim == 2:
-        plotter.view_xy()
-    else:
-        plotter.view_isometric()
-    plotter.add_text(f"step {fr.step:,}   t = {fr.time:.4g} s   {fr.x.shape[0]:,} elements   "
-                     f"cracks: {counts['tensile']} tensile, {counts['shear']} shear",
-                     font_size=max(6, int(size[1] / 80)), color="black")
+        plotter = _plotter(size, show)
+    counts = _draw(plotter, fr, _opacity(fr, opacity), size)
+    _aim(plotter, fr.dim)
     if show:
         plotter.show(screenshot=os.fspath(out))
     else:
@@ -193,3 +233,68 @@ def render_frame(run_dir, frame: int = -1, output=None, color: str = "displaceme
     plotter.close()
     return {"path": os.fspath(out), "frame": fr.index, "frames": fr.count, "step": fr.step,
             "time": fr.time, "elements": int(fr.x.shape[0]), "cracks": counts}
+
+
+#: the most frames an animation draws (spread evenly over the run's frames)
+MAX_ANIMATION_FRAMES = 120
+
+
+def render_animation(run_dir, output, color: str = "displacement", size=(800, 600),
+                     opacity: float | None = None, fps: float = 4.0,
+                     max_frames: int = MAX_ANIMATION_FRAMES, progress=None) -> dict:
+    """Draw the frames of ``run_dir`` (at most ``max_frames``, spread evenly, the first and
+    last among them) into the looping GIF ``output``, at ``fps`` frames per second. Every
+    picture keeps one camera (framing every drawn frame's elements) and one colour scale
+    (0 to the largest value of the field over the drawn frames), so motion and growth show.
+    ``progress(i, n)`` is called after each picture. Returns path, frames drawn, steps,
+    elements and the last frame's cracks by type."""
+    from geodem.extras import needs_extra
+    from geodem.io.gif import gif_writer_missing, pick_frames, save_gif
+
+    first = read_frame(run_dir, 0, color)
+    out = _picture_path(Path(output), ".gif")
+    # one opacity for every picture: the last frame's (see through when it has cracks)
+    opacity = _opacity(read_frame(run_dir, -1, color), opacity)
+    if first.count < 2:
+        raise ViewError(f"{run_dir}: the run holds {first.count} frame; an animation needs 2 or "
+                        "more (outputs.frames.every: N writes a frame every N steps)")
+    if not 2 <= max_frames <= 10_000:
+        raise ViewError(f"--max-frames {max_frames}: allowed: 2 to 10000")
+    if not 0.1 <= fps <= 60:
+        raise ViewError(f"--fps {fps}: allowed: 0.1 to 60")
+    if (why := gif_writer_missing()) is not None:
+        raise ViewError(f"-o {out}: cannot write a GIF: {why}")
+    with needs_extra("geodem view"):
+        plotter = _plotter(size)
+    picks = [int(k) for k in pick_frames(range(first.count), min(max_frames, first.count))]
+    lo, hi, top = np.full(3, np.inf), np.full(3, -np.inf), 0.0
+    for k in picks:  # one camera and one colour scale for the whole animation
+        fr = read_frame(run_dir, k, color)
+        xyz = np.asarray(fr.x, float)
+        pad = float(np.nanmax(fr.r)) if len(fr.r) and np.isfinite(fr.r).any() else 0.0
+        lo[:fr.dim] = np.minimum(lo[:fr.dim], xyz.min(axis=0) - pad)
+        hi[:fr.dim] = np.maximum(hi[:fr.dim], xyz.max(axis=0) + pad)
+        if fr.field is not None and fr.field.size:
+            top = max(top, float(np.nanmax(fr.field)))
+    if first.dim == 2:
+        lo[2], hi[2] = 0.0, 0.0
+    bounds = [v for pair in zip(lo, hi) for v in pair]
+    clim = (0.0, top if top > 0 else 1.0)
+    images, steps, counts = [], [], {}
+    for i, k in enumerate(picks):
+        fr = read_frame(run_dir, k, color)
+        plotter.clear_actors()
+        for title in list(plotter.scalar_bars.keys()):  # drawn again with the new elements
+            plotter.remove_scalar_bar(title)
+        counts = _draw(plotter, fr, opacity, size, clim)
+        if i == 0:
+            _aim(plotter, fr.dim, bounds)
+        images.append(plotter.screenshot(return_img=True))
+        steps.append(fr.step)
+        if progress is not None:
+            progress(i + 1, len(picks))
+    plotter.close()
+    save_gif(os.fspath(out), images, fps)
+    return {"path": os.fspath(out), "frames": len(picks), "frames_in_run": first.count,
+            "steps": [steps[0], steps[-1]], "elements": int(first.x.shape[0]),
+            "cracks": counts}

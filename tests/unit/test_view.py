@@ -132,3 +132,81 @@ def test_view_draws_a_3d_frame(tmp_path, monkeypatch, glyph_limit):
     img = iio.imread(out)[..., :3].astype(int)
     assert img.shape[:2] == (160, 200)
     assert (img.sum(axis=2) < 600).sum() > 50  # something other than the white background
+
+
+def _red_blue(rgb):
+    red = (rgb[..., 0] > 200) & (rgb[..., 1] < 60) & (rgb[..., 2] < 60)
+    blue = (rgb[..., 2] > 200) & (rgb[..., 0] < 60) & (rgb[..., 1] < 60)
+    return int(red.sum()), int(blue.sum())
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_view_draws_the_frames_into_a_gif(tmp_path, dim):
+    pytest.importorskip("pyvista")
+    iio = pytest.importorskip("imageio.v3")
+    run = _fake_run(tmp_path / "run", dim=dim)
+    out = tmp_path / "anim.gif"
+    res = CliRunner().invoke(app, ["view", str(run), "-o", str(out), "--size", "240x180"])
+    assert res.exit_code == 0, res.output
+    assert "2 of the run's 2 frames (steps 0 to 10)" in res.output
+    pics = iio.imread(out, index=None)
+    assert pics.shape[:3] == (2, 180, 240)
+    first, last = (_red_blue(p[..., :3].astype(int)) for p in pics)
+    assert first == (0, 0)  # both cracks come after the first frame
+    assert min(last) > 5    # the tensile (red) and the shear (blue) crack at the last
+
+
+def test_an_animation_draws_at_most_max_frames_spread_over_the_run(tmp_path):
+    pytest.importorskip("pyvista")
+    pytest.importorskip("imageio")
+    from geodem.io.view import render_animation
+
+    run = _fake_run(tmp_path / "run")
+    calls: list = []
+    r = render_animation(run, tmp_path / "a.gif", size=(64, 48), max_frames=2,
+                         progress=lambda i, n: calls.append((i, n)))
+    assert (r["frames"], r["frames_in_run"], r["steps"]) == (2, 2, [0, 10])
+    assert calls == [(1, 2), (2, 2)]
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["--fps", "0"], "--fps 0.0: allowed: 0.1 to 60"),
+    (["--max-frames", "1"], "--max-frames 1: allowed: 2 to 10000"),
+    (["--show"], "--show: allowed with a .png picture only"),
+    (["--opacity", "2"], "--opacity 2.0: allowed: 0 to 1"),
+])
+def test_an_animation_refuses_bad_options_with_exit_2(tmp_path, args, expected):
+    pytest.importorskip("pyvista")
+    run = _fake_run(tmp_path / "run")
+    out = tmp_path / "a.gif"
+    res = CliRunner().invoke(app, ["view", str(run), "-o", str(out), *args])
+    assert res.exit_code == 2, res.output
+    assert expected in res.output
+    assert not out.exists()
+
+
+def test_an_animation_of_a_single_frame_run_exits_2(tmp_path):
+    pytest.importorskip("pyvista")
+    run = tmp_path / "run"
+    run.mkdir()
+    h5 = H5Writer(run / "output.h5")
+    h5.static("particles/all/radius", np.full(2, 0.005))
+    h5.series("particles/all/position", shape=(2, 2))
+    h5.append("particles/all/position", 0, 0.0, np.array([[0.0, 0.0], [0.01, 0.0]]))
+    h5.close()
+    res = CliRunner().invoke(app, ["view", str(run), "-o", str(tmp_path / "a.gif")])
+    assert res.exit_code == 2 and "an animation needs 2 or more" in res.output
+
+
+def test_a_gif_plays_at_its_frames_per_second(tmp_path):
+    Image = pytest.importorskip("PIL.Image")
+    from geodem.io.gif import save_gif
+
+    frames = [np.full((8, 8, 3), 60 * k, np.uint8) for k in range(3)]
+    save_gif(tmp_path / "a.gif", frames, fps=4.0)
+    im = Image.open(tmp_path / "a.gif")
+    shown = []
+    for k in range(im.n_frames):
+        im.seek(k)
+        shown.append(im.info["duration"])
+    assert shown == [250, 250, 250]  # milliseconds: 1000 / fps
