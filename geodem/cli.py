@@ -1621,13 +1621,16 @@ def view_cmd(
     show: Annotated[bool, typer.Option(
         "--show", help="Open an interactive window (needs a display) and save on close.")] =
         False,
+    cracks: Annotated[str, typer.Option(
+        "--cracks", help="Crack types drawn: all, none, or a list of tensile,shear,joint.")] =
+        "all",
     fps: Annotated[float, typer.Option(
         "--fps", help="Animation: frames per second (0.1-60).")] = 4.0,
     max_frames: Annotated[int, typer.Option(
         "--max-frames", help="Animation: the most frames drawn, spread evenly over the run's "
         "(2-10000).")] = 120,
 ):
-    from geodem.io.view import ViewError, render_animation, render_frame
+    from geodem.io.view import ViewError, crack_kinds, render_animation, render_frame
 
     try:
         w, h = (int(v) for v in size.lower().split("x"))
@@ -1636,11 +1639,13 @@ def view_cmd(
     except ValueError:
         raise ViewError(f"--size {size}: allowed: WIDTHxHEIGHT in pixels, 16 to 8192 each "
                         "(e.g. 1200x900)") from None
+    kinds = crack_kinds(cracks)
     if output and output.lower().endswith(".gif"):
         if show:
             raise ViewError("--show: allowed with a .png picture only, not with an animation")
         r = render_animation(run_dir, output, color=color, size=(w, h), opacity=opacity,
-                             fps=fps, max_frames=max_frames, progress=_frames_drawn(_err()))
+                             fps=fps, max_frames=max_frames, progress=_frames_drawn(_err()),
+                             cracks=kinds)
         c = r["cracks"]
         sys.stdout.write(f"wrote {r['path']}: {r['frames']} of the run's {r['frames_in_run']} "
                          f"frames (steps {r['steps'][0]:,} to {r['steps'][1]:,}), "
@@ -1648,7 +1653,7 @@ def view_cmd(
                          f"{c['shear']} shear / {c['joint']} joint cracks\n")
         return
     r = render_frame(run_dir, frame=frame, output=output, color=color, size=(w, h),
-                     opacity=opacity, show=show)
+                     opacity=opacity, show=show, cracks=kinds)
     c = r["cracks"]
     sys.stdout.write(f"wrote {r['path']}: frame {r['frame']} of {r['frames']} (step "
                      f"{r['step']:,}, t = {r['time']:.4g} s), {r['elements']:,} elements, "

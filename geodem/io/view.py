@@ -20,12 +20,30 @@ from geodem.io.vtk import crack_lines, to_xyz
 COLOR_FIELDS = ("displacement", "velocity", "radius", "none")
 #: crack colours by type (geodem.core.engine.Simulation.crack_log: 1 tensile, 2 shear, 0 joint)
 CRACK_COLORS = {1: "red", 2: "blue", 0: "grey"}
+#: crack types by name (``--cracks``)
+CRACK_KINDS = {"tensile": 1, "shear": 2, "joint": 0}
 #: above this many elements the spheres are drawn as screen-space points (fast) not meshes
 GLYPH_LIMIT = 200_000
 
 
 class ViewError(ValueError):
     """A run directory or frame that cannot be drawn (a user error: exit status 2)."""
+
+
+def crack_kinds(text: str) -> tuple[str, ...]:
+    """The crack types ``--cracks`` asks to draw: 'all', 'none' or names from
+    :data:`CRACK_KINDS` separated by commas (a landslide's cut bonds are 'joint': its slide
+    drags them into long lines)."""
+    words = [w.strip() for w in text.lower().split(",") if w.strip()]
+    if words == ["all"]:
+        return tuple(CRACK_KINDS)
+    if words == ["none"]:
+        return ()
+    bad = [w for w in words if w not in CRACK_KINDS]
+    if bad or not words:
+        raise ViewError(f"--cracks {text}: allowed: all, none, or a comma-separated list of "
+                        f"{', '.join(CRACK_KINDS)}")
+    return tuple(dict.fromkeys(words))
 
 
 @dataclasses.dataclass
@@ -138,23 +156,25 @@ def _picture_path(out: Path, suffix: str) -> Path:
     return out
 
 
-def _opacity(fr: Frame, opacity: float | None) -> float:
-    """The elements' opacity: ``opacity``, else 1 in 2-D and 0.2 in 3-D when cracks are drawn
-    (so the cracks inside the body show)."""
+def _opacity(fr: Frame, opacity: float | None, cracks=tuple(CRACK_KINDS)) -> float:
+    """The elements' opacity: ``opacity``, else 1 in 2-D and 0.2 in 3-D when cracks of the
+    types ``cracks`` are drawn (so the cracks inside the body show)."""
     if opacity is None:
-        opacity = 0.2 if (fr.dim == 3 and len(fr.crack_rows)) else 1.0
+        drawn = np.isin(fr.crack_types, [CRACK_KINDS[k] for k in cracks]).any()
+        opacity = 0.2 if (fr.dim == 3 and drawn) else 1.0
     if not 0.0 <= opacity <= 1.0:
         raise ViewError(f"--opacity {opacity}: allowed: 0 to 1")
     return opacity
 
 
-def _draw(plotter, fr: Frame, opacity: float, size, clim=None) -> dict:
+def _draw(plotter, fr: Frame, opacity: float, size, clim=None,
+          cracks=tuple(CRACK_KINDS)) -> dict:
     """Add frame ``fr`` to ``plotter``: the elements (spheres, or points above
     ``GLYPH_LIMIT``) coloured by the frame's field over ``clim`` (default: its own range),
-    the cracks by type and a caption. Returns the cracks drawn by type."""
+    the cracks of the types ``cracks`` and a caption. Returns the frame's cracks by type."""
     import pyvista as pv
 
-    elements, cracks = frame_meshes(fr)
+    elements, lines = frame_meshes(fr)
     scalar = "field" if fr.field is not None else None
     font = max(8, int(size[1] / 40))
     bar = ({"title": fr.label, "color": "black", "vertical": True, "position_x": 0.8,
@@ -170,19 +190,20 @@ def _draw(plotter, fr: Frame, opacity: float, size, clim=None) -> dict:
         balls = elements.glyph(scale="radius", orient=False, factor=1.0,
                                geom=pv.Sphere(radius=1.0, theta_resolution=res,
                                               phi_resolution=res))
-        plotter.add_mesh(balls, smooth_shading=True, **look)
+        plotter.add_mesh(balls, smooth_shading=True, render=False, **look)
     else:  # many elements: screen-space spheres of one size
-        plotter.add_mesh(elements, render_points_as_spheres=True, point_size=3, **look)
+        plotter.add_mesh(elements, render_points_as_spheres=True, point_size=3, render=False,
+                         **look)
     counts = {}
     for code, name in ((1, "tensile"), (2, "shear"), (0, "joint")):
         sel = np.flatnonzero(fr.crack_types == code)
         counts[name] = int(sel.size)
-        if sel.size:
-            plotter.add_mesh(cracks.extract_cells(sel), color=CRACK_COLORS[code], line_width=2,
-                             render_lines_as_tubes=False)
+        if sel.size and name in cracks:
+            plotter.add_mesh(lines.extract_cells(sel), color=CRACK_COLORS[code], line_width=2,
+                             render_lines_as_tubes=False, render=False)
     plotter.add_text(f"step {fr.step:,}   t = {fr.time:.4g} s   {fr.x.shape[0]:,} elements   "
                      f"cracks: {counts['tensile']} tensile, {counts['shear']} shear",
-                     font_size=max(6, int(size[1] / 80)), color="black")
+                     font_size=max(6, int(size[1] / 80)), color="black", render=False)
     return counts
 
 
@@ -210,13 +231,14 @@ def _aim(plotter, dim: int, bounds=None) -> None:
 
 
 def render_frame(run_dir, frame: int = -1, output=None, color: str = "displacement",
-                 size=(1200, 900), opacity: float | None = None, show: bool = False) -> dict:
+                 size=(1200, 900), opacity: float | None = None, show: bool = False,
+                 cracks=tuple(CRACK_KINDS)) -> dict:
     """Draw frame ``frame`` of ``run_dir`` to ``output`` (PNG; default
     ``RUN_DIR/view_frame_<index>.png``). Returns what was drawn: path, step, time, elements,
     cracks by type.
 
     ``opacity`` of the elements: default 1 in 2-D, and 0.2 in 3-D when cracks are drawn (so the
-    cracks inside the body show)."""
+    cracks inside the body show); ``cracks``: the crack types drawn (:func:`crack_kinds`)."""
     from geodem.extras import needs_extra
 
     fr = read_frame(run_dir, frame, color)  # the run and the frame first: clear errors
@@ -224,7 +246,7 @@ def render_frame(run_dir, frame: int = -1, output=None, color: str = "displaceme
                         Path(run_dir) / f"view_frame_{fr.index}.png", ".png")
     with needs_extra("geodem view"):
         plotter = _plotter(size, show)
-    counts = _draw(plotter, fr, _opacity(fr, opacity), size)
+    counts = _draw(plotter, fr, _opacity(fr, opacity, cracks), size, cracks=cracks)
     _aim(plotter, fr.dim)
     if show:
         plotter.show(screenshot=os.fspath(out))
@@ -241,7 +263,8 @@ MAX_ANIMATION_FRAMES = 120
 
 def render_animation(run_dir, output, color: str = "displacement", size=(800, 600),
                      opacity: float | None = None, fps: float = 4.0,
-                     max_frames: int = MAX_ANIMATION_FRAMES, progress=None) -> dict:
+                     max_frames: int = MAX_ANIMATION_FRAMES, progress=None,
+                     cracks=tuple(CRACK_KINDS)) -> dict:
     """Draw the frames of ``run_dir`` (at most ``max_frames``, spread evenly, the first and
     last among them) into the looping GIF ``output``, at ``fps`` frames per second. Every
     picture keeps one camera (framing every drawn frame's elements) and one colour scale
@@ -254,7 +277,7 @@ def render_animation(run_dir, output, color: str = "displacement", size=(800, 60
     first = read_frame(run_dir, 0, color)
     out = _picture_path(Path(output), ".gif")
     # one opacity for every picture: the last frame's (see through when it has cracks)
-    opacity = _opacity(read_frame(run_dir, -1, color), opacity)
+    opacity = _opacity(read_frame(run_dir, -1, color), opacity, cracks)
     if first.count < 2:
         raise ViewError(f"{run_dir}: the run holds {first.count} frame; an animation needs 2 or "
                         "more (outputs.frames.every: N writes a frame every N steps)")
@@ -283,12 +306,16 @@ def render_animation(run_dir, output, color: str = "displacement", size=(800, 60
     images, steps, counts = [], [], {}
     for i, k in enumerate(picks):
         fr = read_frame(run_dir, k, color)
-        plotter.clear_actors()
+        # drawing renders nothing (render=False): a render of 10^4 spheres in software takes
+        # seconds, and one is enough, the screenshot's
+        for name in list(plotter.actors):
+            plotter.remove_actor(name, render=False)
         for title in list(plotter.scalar_bars.keys()):  # drawn again with the new elements
-            plotter.remove_scalar_bar(title)
-        counts = _draw(plotter, fr, opacity, size, clim)
+            plotter.remove_scalar_bar(title, render=False)
+        counts = _draw(plotter, fr, opacity, size, clim, cracks)
         if i == 0:
             _aim(plotter, fr.dim, bounds)
+        plotter.render()
         images.append(plotter.screenshot(return_img=True))
         steps.append(fr.step)
         if progress is not None:

@@ -210,3 +210,37 @@ def test_a_gif_plays_at_its_frames_per_second(tmp_path):
         im.seek(k)
         shown.append(im.info["duration"])
     assert shown == [250, 250, 250]  # milliseconds: 1000 / fps
+
+
+def test_crack_kinds_chooses_the_types_drawn():
+    from geodem.io.view import crack_kinds
+
+    assert crack_kinds("all") == ("tensile", "shear", "joint")
+    assert crack_kinds("none") == ()
+    assert crack_kinds("Shear, tensile,shear") == ("shear", "tensile")
+    for bad in ("cuts", "", "all,none", "tensile,cuts"):
+        with pytest.raises(ViewError, match="allowed: all, none, or a comma-separated list"):
+            crack_kinds(bad)
+
+
+@pytest.mark.parametrize("kinds, expected", [("none", (False, False)),
+                                             ("tensile", (True, False)),
+                                             ("shear,tensile", (True, True))])
+def test_view_draws_the_crack_types_asked_for(tmp_path, kinds, expected):
+    pytest.importorskip("pyvista")
+    iio = pytest.importorskip("imageio.v3")
+    run = _fake_run(tmp_path / "run")
+    out = tmp_path / "v.png"
+    res = CliRunner().invoke(app, ["view", str(run), "-o", str(out), "--size", "320x240",
+                                   "--cracks", kinds])
+    assert res.exit_code == 0, res.output
+    assert "1 tensile / 1 shear / 0 joint cracks" in res.output  # counted, drawn or not
+    red, blue = _red_blue(iio.imread(out)[..., :3].astype(int))
+    assert (red > 10, blue > 10) == expected
+
+
+def test_view_refuses_unknown_crack_types_with_exit_2(tmp_path):
+    run = _fake_run(tmp_path / "run")
+    res = CliRunner().invoke(app, ["view", str(run), "--cracks", "cuts"])
+    assert res.exit_code == 2 and "--cracks cuts: allowed: all, none" in res.output
+    assert not list(run.glob("*.png"))
