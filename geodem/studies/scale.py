@@ -26,6 +26,11 @@ Families (``FAMILIES``):
   at nearly every step (20 rebuilds in 22 couplings at 10⁴ elements); this one's jitter
   against bonds of rest length d sets it vibrating too (up to ~15 m/s; 4 rebuilds in 20
   couplings at 10⁴ elements, docs/performance.md).
+* ``terrain``: the 3-D landslide's hill (``geodem.geo.synthetic``: 600 m x 300 m, 100 m of
+  relief, 10 m of rock below its lowest point) built as a workflow builds it: a ``scene``
+  model over the elevation raster (read with rasterio, the ground sampled at every element),
+  filled with the close-packed lattice, the slide region under its sliding-surface raster,
+  the base and sides as groups, bonded; d chosen for about N elements;
 * ``pore_isotropic``: the ``isotropic`` packing (the lab specimens' rock: random, jammed,
   stress-free, so at rest) with that pore field: its network is the one a 3-D fluid scene in
   rock has, with few near-flat cells, so it measures the field's cost per coupling rather than
@@ -49,7 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
-FAMILIES = ("lattice", "isotropic", "granular", "thermal", "pore", "pore_isotropic")
+FAMILIES = ("lattice", "isotropic", "granular", "terrain", "thermal", "pore", "pore_isotropic")
 FIELD_STEPS = 20  # timed steps of the families with a coupled field (the pore field is slow)
 DEFAULT_SIZES = (1000, 10_000, 100_000, 1_000_000)
 SLACK = 0.1  # exponent allowance over N log N (timer noise, cache effects)
@@ -99,6 +104,35 @@ def _at_rest(n):
     return st, {}
 
 
+def _terrain(n):
+    from geodem.geo import synthetic as hill
+    from geodem.workflow.runner import prepare
+
+    x, y, _ = hill.grid()
+    z = hill.hill_elevation(x, y)
+    base = 10.0
+    volume = float((z - z.min() + base).sum()) * hill.DX ** 2
+    d = (volume * math.sqrt(2.0) / n) ** (1.0 / 3.0)  # FCC: sqrt(2) / d^3 elements per m^3
+    with tempfile.TemporaryDirectory(prefix="geodem-scale-") as tmp:
+        ground, slip = hill.write_hill(tmp)
+        doc = {"metadata": {"name": "scale_terrain", "seed": 0},
+               "model": {"type": "scene", "dim": 3, "d": d, "material": "rock",
+                         "domain": {"terrain": {"raster": str(ground), "base_depth": base}},
+                         "regions": [{"name": "slide", "material": "rock", "shape": {
+                             "surface": {"depth_raster": str(slip), "side": "above"}}}],
+                         "groups": {"sides": {"side": ["xmin", "xmax", "ymin", "ymax"]},
+                                    "base": {"side": "zmin"}, "slide": {"region": "slide"}},
+                         "gravity": [0.0, 0.0, -9.81]},
+               "materials": {"rock": {"dim": 3, "rho": 2500.0, "kn_per_d": 6.667e8,
+                                      "ks_per_d": 2.667e8, "xb_per_d": 0.01667,
+                                      "fs0_per_d2": 3.333e7, "mu": 0.6}},
+               "steps": [{"kind": "fix", "group": "base"}]}
+        wf = Path(tmp) / "terrain.yaml"
+        wf.write_text(json.dumps(doc))
+        st = prepare(wf).built.state
+    return st, {"d": d}
+
+
 def _thermal_field():
     from geodem.fields.thermal import ThermalField
 
@@ -112,7 +146,7 @@ def _pore_field():
 
 
 BUILDERS = {"lattice": _lattice, "isotropic": _isotropic, "granular": _granular,
-            "thermal": _at_rest, "pore": _at_rest, "pore_isotropic": _isotropic}
+            "terrain": _terrain, "thermal": _at_rest, "pore": _at_rest, "pore_isotropic": _isotropic}
 FIELDS = {"thermal": (_thermal_field,), "pore": (_pore_field,),
           "pore_isotropic": (_pore_field,)}
 

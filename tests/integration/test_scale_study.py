@@ -11,10 +11,12 @@ def test_scale_study_on_tiny_models(tmp_path):
     out = tmp_path / "scale"
     res = CliRunner().invoke(app, ["study", "scale", "-o", str(out), "--sizes", "300,900",
                                    "--families",
-                                   "lattice,granular,isotropic,thermal,pore,pore_isotropic"])
+                                   "lattice,granular,isotropic,terrain,thermal,pore,"
+                                   "pore_isotropic"])
     assert res.exit_code == 0, res.output
     r = json.loads((out / "scale.json").read_text())
-    families = {"lattice", "granular", "isotropic", "thermal", "pore", "pore_isotropic"}
+    families = {"lattice", "granular", "isotropic", "terrain", "thermal", "pore",
+                "pore_isotropic"}
     assert {p["family"] for p in r["points"]} == families
     for p in r["points"]:
         assert 0.5 * p["n_requested"] <= p["n"] <= 1.5 * p["n_requested"]
@@ -42,5 +44,16 @@ def test_unknown_family_exits_2(tmp_path):
     res = CliRunner().invoke(app, ["study", "scale", "-o", str(tmp_path / "s"),
                                    "--families", "lattice,foam"])
     assert res.exit_code == 2
-    assert ("foam unknown; allowed: lattice, isotropic, granular, thermal, pore, "
+    assert ("foam unknown; allowed: lattice, isotropic, granular, terrain, thermal, pore, "
             "pore_isotropic") in res.output
+
+
+def test_the_terrain_family_is_the_hill_built_as_a_workflow_builds_it():
+    """About N elements of the landslide's hill: the FCC lattice's sqrt(2) / d^3 elements per
+    m^3 over the ground's volume, less the partial cells at its faces; bonded like rock."""
+    from geodem.studies.scale import measure
+
+    r = measure("terrain", 3000, steps=5)
+    assert 0.8 * 3000 < r["n"] < 1.05 * 3000
+    assert r["d"] > 10.0  # m: 600 m x 300 m of hill in a few thousand elements
+    assert 6.0 < r["contacts_per_element"] < 12.5
