@@ -19,14 +19,16 @@ import numpy as np
 _VTK_TYPES = {"f8": "Float64", "i4": "Int32", "i8": "Int64"}
 
 
-def _data_array(name, arr, comps=1) -> str:
+def _data_array(name, arr, comps=1) -> list[bytes]:
+    """An inline binary ``DataArray`` element as byte pieces (written one after another, never
+    joined: at 10^6 elements a frame is ~100 MB, and joining its pieces copied it again and
+    again)."""
     arr = np.ascontiguousarray(arr)
-    raw = arr.tobytes()
-    payload = base64.b64encode(np.uint64(len(raw)).tobytes() + raw).decode("ascii")
+    payload = base64.b64encode(np.uint64(arr.nbytes).tobytes() + arr.tobytes())
     typ = _VTK_TYPES[arr.dtype.str[1:]]
     nm = f' Name="{name}"' if name else ""
-    return (f'<DataArray type="{typ}"{nm} NumberOfComponents="{comps}" format="binary">'
-            f"{payload}</DataArray>")
+    return [f'<DataArray type="{typ}"{nm} NumberOfComponents="{comps}" format="binary">'
+            .encode(), payload, b"</DataArray>\n"]
 
 
 def to_xyz(a):
@@ -66,41 +68,36 @@ def write_vtp(path, points, point_data: dict, lines=None, line_types=None) -> No
     n = len(pts)
     lines = np.zeros((0, 2), np.int64) if lines is None else np.asarray(lines, np.int64)
     m = len(lines)
-    arrays = []
+    pieces = [b'<?xml version="1.0"?>\n'
+              b'<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" '
+              b'header_type="UInt64">\n<PolyData>\n',
+              f'<Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="{m}" '
+              'NumberOfStrips="0" NumberOfPolys="0">\n<PointData>\n'.encode()]
     for name, val in point_data.items():
         val = np.asarray(val)
         if val.dtype.kind == "f":
             val = val.astype(np.float64)
         elif val.dtype.kind in "iub":
             val = val.astype(np.int32)
-        if val.ndim == 2:
-            arrays.append(_data_array(name, to_xyz(val), 3))
-        else:
-            arrays.append(_data_array(name, val))
+        pieces += _data_array(name, to_xyz(val), 3) if val.ndim == 2 else _data_array(name, val)
+    pieces.append(b"</PointData>\n")
     ids = np.arange(n, dtype=np.int64)
-    cell_data = line_cells = ""
     if m:
         types = (np.zeros(m) if line_types is None else np.asarray(line_types)).astype(np.int32)
         cell_type = np.concatenate([np.full(n, -1, np.int32), types])  # verts first, then lines
-        cell_data = "<CellData>\n" + _data_array("crack_type", cell_type) + "\n</CellData>\n"
-        line_cells = ("<Lines>\n" + _data_array("connectivity", lines.ravel()) + "\n"
-                      + _data_array("offsets", 2 * np.arange(1, m + 1, dtype=np.int64))
-                      + "\n</Lines>\n")
-    text = (
-        '<?xml version="1.0"?>\n'
-        '<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64">\n'
-        "<PolyData>\n"
-        f'<Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="{m}" '
-        'NumberOfStrips="0" NumberOfPolys="0">\n'
-        "<PointData>\n" + "\n".join(arrays) + "\n</PointData>\n" + cell_data
-        + "<Points>\n" + _data_array("Points", pts, 3) + "\n</Points>\n"
-        "<Verts>\n" + _data_array("connectivity", ids) + "\n"
-        + _data_array("offsets", ids + 1) + "\n</Verts>\n"
-        + line_cells
-        + "</Piece>\n</PolyData>\n</VTKFile>\n")
+        pieces += [b"<CellData>\n", *_data_array("crack_type", cell_type), b"</CellData>\n"]
+    pieces += [b"<Points>\n", *_data_array("Points", pts, 3), b"</Points>\n<Verts>\n",
+               *_data_array("connectivity", ids), *_data_array("offsets", ids + 1),
+               b"</Verts>\n"]
+    if m:
+        pieces += [b"<Lines>\n", *_data_array("connectivity", lines.ravel()),
+                   *_data_array("offsets", 2 * np.arange(1, m + 1, dtype=np.int64)),
+                   b"</Lines>\n"]
+    pieces.append(b"</Piece>\n</PolyData>\n</VTKFile>\n")
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
+    with open(tmp, "wb") as f:
+        f.writelines(pieces)
     os.replace(tmp, path)
 
 
