@@ -148,6 +148,7 @@ def frame_meshes(fr: Frame):
 
 
 def _picture_path(out: Path, suffix: str) -> Path:
+    """``out`` when it ends in ``suffix`` and its folder exists (else :class:`ViewError`)."""
     if out.suffix.lower() != suffix:
         raise ViewError(f"-o {out}: allowed: a .png file (one frame) or a .gif file (an "
                         "animation of the run's frames)")
@@ -195,7 +196,7 @@ def _draw(plotter, fr: Frame, opacity: float, size, clim=None,
         plotter.add_mesh(elements, render_points_as_spheres=True, point_size=3, render=False,
                          **look)
     counts = {}
-    for code, name in ((1, "tensile"), (2, "shear"), (0, "joint")):
+    for name, code in CRACK_KINDS.items():
         sel = np.flatnonzero(fr.crack_types == code)
         counts[name] = int(sel.size)
         if sel.size and name in cracks:
