@@ -1240,8 +1240,9 @@ def _float_list(value: Optional[str], name: str, integer=False):
     "strength scatter); writes friction.json and friction.md; docs/triaxial.md.\n\n"
     "KIND 'scale': build time, memory per element, element-steps/s, checkpoint and output time "
     "of 3-D models against their size (--sizes) for each family (--families: lattice, "
-    "isotropic, granular, terrain, thermal, pore, pore_isotropic); writes scale.json, scale.csv and scale.png (log-log, with the "
-    "linear cost) and flags a cost growing faster than N log N; docs/performance.md."))
+    "isotropic, granular, terrain, thermal, pore, pore_isotropic); writes scale.json, "
+    "scale.csv and scale.png (log-log, with the linear cost) and flags a cost growing faster "
+    "than N log N; docs/performance.md."))
 @_guard
 def study_cmd(
     kind: Annotated[str, typer.Argument(metavar="KIND", help="ucs, stability, "
@@ -1282,7 +1283,8 @@ def study_cmd(
         "\\[default: 1000,10000,100000,1000000]")] = None,
     families: Annotated[Optional[str], typer.Option(
         "--families", help="scale: model families, comma-separated (lattice, isotropic, "
-                           "granular, terrain, thermal, pore, pore_isotropic) \\[default: all]")] = None,
+                           "granular, terrain, thermal, pore, pore_isotropic) "
+                           "\\[default: all]")] = None,
     max_build: Annotated[float, typer.Option(
         "--max-build", min=1.0, help="scale: seconds of build after which a family's larger "
                                      "sizes are skipped (their build time projected)")] = 600.0,

@@ -1016,7 +1016,8 @@ def plot_history(path, a, t0, breakdown, hw):
 
 
 def write_gif(path, frames, centre, R, d, ref):
-    """Animation of the pore-pressure maps: Pillow if installed, else imageio; returns None (skipped) when neither can write a GIF."""
+    """Animation of the pore-pressure maps: Pillow if installed, else imageio; returns None
+    (skipped) when neither can write a GIF."""
     if pyplot() is None or not frames:
         return None
     data = [np.load(f) for f in frames]

@@ -146,7 +146,8 @@ def _pore_field():
 
 
 BUILDERS = {"lattice": _lattice, "isotropic": _isotropic, "granular": _granular,
-            "terrain": _terrain, "thermal": _at_rest, "pore": _at_rest, "pore_isotropic": _isotropic}
+            "terrain": _terrain, "thermal": _at_rest, "pore": _at_rest,
+            "pore_isotropic": _isotropic}
 FIELDS = {"thermal": (_thermal_field,), "pore": (_pore_field,),
           "pore_isotropic": (_pore_field,)}
 
