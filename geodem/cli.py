@@ -1398,6 +1398,9 @@ def _scale(out, sizes, families, max_build, backend):
         if worst:
             con.print(f"[bold red]{fam}: faster than N log N: {', '.join(worst)}[/]")
     con.print(f"wrote scale.json, scale.csv, scale.png to {out}", highlight=False)
+    if res["failed"]:
+        _fail("; ".join(f"{f['family']} at {f['n']:,} elements failed: {f['error']}"
+                        for f in res["failed"]) + f" (the other points are in {out})", 1)
 
 
 def _reach(out, dim, s_values, rho_values, save, backend, merge=False):

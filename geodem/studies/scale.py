@@ -229,17 +229,22 @@ def verdict(points, key) -> dict:
 def scale_study(out, families=FAMILIES, sizes=DEFAULT_SIZES, backend="numba",
                 max_build_s: float = 600.0, progress=None) -> dict:
     """Measure every family at every size (skipping larger sizes after a build over
-    ``max_build_s``); writes scale.json, scale.csv and scale.png into ``out``."""
+    ``max_build_s``); writes scale.json, scale.csv and scale.png into ``out``. A point that
+    fails (a field's stability bound, memory) is kept in ``failed`` with its error, the
+    family's larger sizes are skipped, and the other families go on."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     for f in families:
         if f not in BUILDERS:
             raise ValueError(f"--families: {f!r} unknown; allowed: {', '.join(FAMILIES)}")
-    points, skipped = [], []
+    points, skipped, failed = [], [], []
     for fam in families:
         BUILDERS[fam](200)  # compile the builder's kernels first: not part of the curve
         done = []
         for n in sorted(sizes):
+            if failed and failed[-1]["family"] == fam:  # larger sizes fail as well, or worse
+                skipped.append({"family": fam, "n": int(n), "after_failure": True})
+                continue
             if done and done[-1]["build_s"] > max_build_s:
                 e = exponent(done, "build_s") or 1.0
                 proj = done[-1]["build_s"] * (n / done[-1]["n"]) ** max(e, 1.0)
@@ -247,7 +252,14 @@ def scale_study(out, families=FAMILIES, sizes=DEFAULT_SIZES, backend="numba",
                 if progress:
                     progress(f"{fam:9s} {n:>9,}: skipped (build projected at {proj:,.0f} s)")
                 continue
-            rec = measure(fam, n, backend)
+            try:
+                rec = measure(fam, n, backend)
+            except Exception as exc:  # noqa: BLE001 - one point failed: say it, keep the rest
+                failed.append({"family": fam, "n": int(n),
+                               "error": f"{type(exc).__name__}: {exc}"})
+                if progress:
+                    progress(f"{fam:9s} {n:>9,}: FAILED: {failed[-1]['error']}")
+                continue
             done.append(rec)
             points.append(rec)
             if progress:
@@ -255,8 +267,8 @@ def scale_study(out, families=FAMILIES, sizes=DEFAULT_SIZES, backend="numba",
     summary = {fam: {k: verdict([p for p in points if p["family"] == fam], k)
                      for k in ("build_s", "checkpoint_s", "h5_frame_s", "vtk_frame_s")}
                for fam in families}
-    res = {"backend": backend, "points": points, "skipped": skipped, "growth": summary,
-           "machine": _machine()}
+    res = {"backend": backend, "points": points, "skipped": skipped, "failed": failed,
+           "growth": summary, "machine": _machine()}
     (out / "scale.json").write_text(json.dumps(res, indent=2))
     _csv(out / "scale.csv", points)
     plot(res, out / "scale.png")

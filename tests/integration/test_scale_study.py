@@ -57,3 +57,30 @@ def test_the_terrain_family_is_the_hill_built_as_a_workflow_builds_it():
     assert 0.8 * 3000 < r["n"] < 1.05 * 3000
     assert r["d"] > 10.0  # m: 600 m x 300 m of hill in a few thousand elements
     assert 6.0 < r["contacts_per_element"] < 12.5
+
+
+def test_a_failing_point_is_reported_and_the_others_kept(tmp_path, monkeypatch):
+    """A point that fails (here: a made-up stability error of the lattice at 900 elements)
+    is said and kept in scale.json; the family's larger sizes are skipped, the other
+    families measured, and the study exits 1."""
+    from geodem.studies import scale
+
+    real = scale.measure
+
+    def measure(family, n, backend="numba", steps=None):
+        if family == "lattice" and n == 900:
+            raise RuntimeError("dt above the field's stability bound")
+        return real(family, n, backend, steps)
+
+    monkeypatch.setattr(scale, "measure", measure)
+    out = tmp_path / "scale"
+    res = CliRunner().invoke(app, ["study", "scale", "-o", str(out), "--sizes", "300,900,2000",
+                                   "--families", "lattice,granular"])
+    assert res.exit_code == 1
+    assert "lattice at 900 elements failed: RuntimeError: dt above" in res.output
+    r = json.loads((out / "scale.json").read_text())
+    assert r["failed"] == [{"family": "lattice", "n": 900,
+                            "error": "RuntimeError: dt above the field's stability bound"}]
+    assert {(s["family"], s["n"]) for s in r["skipped"]} == {("lattice", 2000)}
+    assert sorted((p["family"], p["n_requested"]) for p in r["points"]) == [
+        ("granular", 300), ("granular", 900), ("granular", 2000), ("lattice", 300)]
