@@ -34,14 +34,12 @@ def save_gif(path, images, fps: float = 8.0):
     try:
         from PIL import Image
     except ImportError:
-        Image = None
-    if Image is not None:
-        pics = [Image.fromarray(im) for im in images]
-        pics[0].save(path, save_all=True, append_images=pics[1:], duration=ms, loop=0)
+        try:
+            import imageio.v3 as iio
+        except ImportError:
+            return None
+        iio.imwrite(path, images, duration=ms, loop=0)
         return path
-    try:
-        import imageio.v3 as iio
-    except ImportError:
-        return None
-    iio.imwrite(path, images, duration=ms, loop=0)
+    pics = [Image.fromarray(im) for im in images]
+    pics[0].save(path, save_all=True, append_images=pics[1:], duration=ms, loop=0)
     return path
