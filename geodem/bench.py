@@ -195,13 +195,27 @@ def _field_updates(sim) -> int | None:
     return int(sum(counts)) if counts else None
 
 
+def _fitted_dt(sim, dt: float, fraction: float) -> float:
+    """``dt`` [s], or ``fraction`` x the smallest ``mechanical_dt_bound`` of the coupled
+    fields where that is smaller; each field then checks it (FieldStabilityError if above)."""
+    bounds = [f.mechanical_dt_bound(sim) for f in sim.fields if hasattr(f, "mechanical_dt_bound")]
+    sim.state.dt = min([dt] + [fraction * b for b in bounds])
+    for f in sim.fields:
+        if hasattr(f, "check_mechanical_dt"):
+            f.check_mechanical_dt(sim)
+    return sim.state.dt
+
+
 def bench_one(state, backend: str, steps: int | None = None, copy: bool = True,
-              fields=()) -> dict:
+              fields=(), fit_dt: float | None = None) -> dict:
     """Time ``Simulation.run`` of ``state`` on ``backend``; one record.
 
     ``copy=True`` steps a copy (so the next backend starts from the same state); ``False`` steps
     ``state`` itself (saves the memory of a copy; the state is changed). ``fields``: factories
-    of coupled fields to attach first (their attach time is ``field_attach_s``).
+    of coupled fields to attach first (their attach time is ``field_attach_s``). ``fit_dt``:
+    the time step becomes at most this fraction of each field's ``mechanical_dt_bound`` (a
+    stiff fluid in the smallest pore of a large network), recorded as ``dt_s`` and
+    ``dt_fitted``; None keeps the state's time step (a field then refuses one above its bound).
     """
     from geodem.core.engine import Simulation
     from geodem.core.neighbors import row_counts
@@ -217,8 +231,13 @@ def bench_one(state, backend: str, steps: int | None = None, copy: bool = True,
         kw["monitor_every"] = 0
     sim = Simulation(st, backend=backend, **kw)
     t0 = time.perf_counter()
+    dt0 = st.dt
+    if fit_dt:
+        st.dt = 0.0  # the fields check their bound against a set time step only
     for make in fields:
         sim.add_field(make())
+    if fit_dt:
+        st.dt = _fitted_dt(sim, dt0, fit_dt)
     attach = time.perf_counter() - t0
     # the backend's own buffers and tables count too (numba: the threads' force buffers)
     scratch = getattr(sim.backend, "scratch_nbytes", lambda: 0)()
@@ -251,6 +270,8 @@ def bench_one(state, backend: str, steps: int | None = None, copy: bool = True,
     rec = {
         "backend": backend,
         "dim": st.dim,
+        "dt_s": st.dt,
+        "dt_fitted": st.dt < dt0,
         "n": int(n),
         "element_steps_per_s": n * steps / wall,
         "bytes_per_element": bytes_per_element + scratch / n,

@@ -667,15 +667,19 @@ def test_the_3d_turning_angle_plane_reads_both_slopes():
     assert C._phi_plane(X, np.full(3, np.nan), (18.5, 7.4)) is None
 
 
-@pytest.mark.parametrize("E, Cu, rho, rate", [
-    (10e9, 50e6, 2500.0, 0.5),                                   # 0.781 /s, capped
-    (4e9, 20e6, 2500.0, 5e-3 * math.sqrt(4e9 / 2500.0) / 12.8),  # 0.494 /s
-    (50e6, 0.2e6, 2000.0, 0.2)])                                 # 0.049 /s, floored
-def test_the_ucs_test_loads_to_its_peak_in_64_wave_transits(E, Cu, rho, rate):
-    """rate = (Cu / E) sqrt(E / rho) / (64 L), L = 0.2 m, within 0.2-0.5 /s; a given
-    strain_rate is kept."""
+@pytest.mark.parametrize("dim, E, Cu, rho, rate", [
+    (2, 10e9, 50e6, 2500.0, 0.5),                                   # 0.781 /s, capped
+    (3, 10e9, 50e6, 2500.0, 5e-3 * math.sqrt(10e9 / 2500.0) / 12.8),  # 0.781 /s
+    (3, 40e9, 400e6, 2500.0, 1.0),                                  # 3.12 /s, capped
+    (2, 4e9, 20e6, 2500.0, 5e-3 * math.sqrt(4e9 / 2500.0) / 12.8),  # 0.494 /s
+    (2, 50e6, 0.2e6, 2000.0, 0.2),                                  # 0.049 /s, floored
+    (3, 50e6, 0.2e6, 2000.0, 0.2)])
+def test_the_ucs_test_loads_to_its_peak_in_64_wave_transits(dim, E, Cu, rho, rate):
+    """rate = (Cu / E) sqrt(E / rho) / (64 L), L = 0.2 m, within 0.2-0.5 /s in 2-D and
+    0.2-1 /s in 3-D; a given strain_rate is kept."""
     targets = {"E": E, "nu": 0.25, "Cu": Cu, "Tu": Cu / 10, "rho": rho, "mu_i": 0.6}
-    spec = C.CalibrationSpec(targets=targets, ucs_size=(0.1, 0.2))
+    size = (0.1, 0.2) if dim == 2 else (0.1, 0.1, 0.2)
+    spec = C.CalibrationSpec(targets=targets, dim=dim, ucs_size=size, d_mean=0.01)
     assert C.ucs_strain_rate(spec) == pytest.approx(rate, rel=1e-12)
     assert C._ucs_workflow(spec, {})["steps"][0]["strain_rate"] == pytest.approx(rate)
     assert C.ucs_strain_rate(C.replace(spec, strain_rate=0.3)) == 0.3
