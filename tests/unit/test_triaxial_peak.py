@@ -1,6 +1,7 @@
 """A triaxial stage has a peak only if its deviator came down after it (geodem.cases.triaxial
 .has_peaked); a curve still hardening at max_strain has none."""
 import numpy as np
+import pytest
 
 from geodem.cases.triaxial import SOFTENED, has_peaked, past_peak
 
@@ -61,3 +62,26 @@ def test_the_calibration_stops_its_friction_stages_at_1_25_x_the_peak_strain():
                                                            "Tu": 4e6, "mu_i": 0.7, "rho": 2500.0})
     step = C._triaxial_workflow(spec, {"kn_per_d": 1.0}, [0.0])["steps"][0]
     assert (step["drop"], step["drop_strain"]) == (0.95, 1.25)
+
+
+def test_the_confined_friction_stage_loads_to_its_expected_peak_as_fast_as_the_unconfined():
+    """rate = rate_0 (Cu + (k - 1) sigma3) / Cu with k = (1 + sin phi) / (1 - sin phi): here
+    mu_i = 0.7 (phi 34.99 deg, k 3.689), sigma3 = 0.133 x 75 MPa: 1.358 x rate_0."""
+    import math
+
+    from geodem.studies import calibrate as C
+
+    spec = C.CalibrationSpec(name="rock", dim=3, d_mean=0.01, ucs_size=(0.1, 0.1, 0.2),
+                             targets={"E": 15e9, "nu": 0.2, "Cu": 75e6, "Tu": 4e6,
+                                      "mu_i": 0.7, "rho": 2500.0})
+    rate_0 = 75e6 / 15e9 * math.sqrt(15e9 / 2500.0) / (64 * 0.2)  # 0.957 /s
+    s3 = C.friction_sigma3(spec)
+    assert s3 == 0.133 * 75e6
+    stage = {p: C._triaxial_workflow(spec, {"kn_per_d": 1.0}, [p])["steps"][0]["strain_rate"]
+             for p in (0.0, s3)}
+    assert stage[0.0] == pytest.approx(rate_0, rel=1e-12)
+    assert stage[s3] == pytest.approx(rate_0 * (1 + 2.68892 * 0.133), rel=1e-5)
+    both = C._triaxial_workflow(spec, {"kn_per_d": 1.0})["steps"][0]["strain_rate"]
+    assert both == stage[0.0]  # stages run together share the unconfined stage's rate
+    no_phi = C.replace(spec, targets={k: v for k, v in spec.targets.items() if k != "mu_i"})
+    assert C.friction_stage_rate(no_phi, s3) == pytest.approx(rate_0, rel=1e-12)
