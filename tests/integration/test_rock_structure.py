@@ -20,16 +20,14 @@ def _rock(tmp_path, name, *extra):
 
 def test_the_isotropic_packing_makes_the_calibrated_sandstone_the_deposit_another_rock(
         tmp_path):
-    iso = _rock(tmp_path, "isotropic")
-    # (its disc is not judged here: a small one, 10 across, instead of 40 saves half its run)
+    # (the discs are not judged here: small ones, 10 across, instead of 40 save half of each
+    # run; the 40-across discs of the isotropic sandstone on three packings, their mean within
+    # 15 % of Tu, are test_one_rock's)
+    iso = _rock(tmp_path, "isotropic", "--disc-diameter", "0.05")
     dep = _rock(tmp_path, "deposit", "--packing", "deposit", "--disc-diameter", "0.05")
     assert iso["structure"]["packing"] == "isotropic" and dep["structure"]["packing"] == "deposit"
-    # measured (2-D, turning library sandstone, 2026-12-05): isotropic Cu / Tu 17.8 (lab
-    # 18.8), Brazilian (40 across) 3.01 MPa against direct tension 4.07 on this packing: one
-    # disc splits from one flaw (0.75, 1.30, 0.92 x Tu on seeds 0-2; their mean within 15 % of
-    # Tu is test_one_rock's), so one disc is only held to its packing scatter here
+    # measured (2-D, turning library sandstone, 2026-12-05): isotropic Cu / Tu 17.8 (lab 18.8)
     assert abs(iso["ratio"] / iso["target_ratio"] - 1) < 0.12, iso
-    assert 0.6 < iso["brazilian"]["tensile_strength"] / iso["measured"]["Tu"] < 1.5, iso
     # the deposited packing is a weaker rock: Tu 2.91 MPa against 4.07 (its disc, turning
     # elements too, split at 2.67 MPa, 0.92 x its Tu; translating elements' deposit discs
     # peaked at 2.6 x theirs)

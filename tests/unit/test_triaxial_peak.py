@@ -64,7 +64,7 @@ def test_the_calibration_stops_its_friction_stages_at_1_25_x_the_peak_strain():
     assert (step["drop"], step["drop_strain"]) == (0.95, 1.25)
 
 
-def test_the_confined_friction_stage_loads_to_its_expected_peak_as_fast_as_the_unconfined():
+def test_a_3d_confined_friction_stage_loads_to_its_expected_peak_as_fast_as_the_unconfined():
     """rate = rate_0 (Cu + (k - 1) sigma3) / Cu with k = (1 + sin phi) / (1 - sin phi): here
     mu_i = 0.7 (phi 34.99 deg, k 3.689), sigma3 = 0.133 x 75 MPa: 1.358 x rate_0."""
     import math
@@ -85,3 +85,8 @@ def test_the_confined_friction_stage_loads_to_its_expected_peak_as_fast_as_the_u
     assert both == stage[0.0]  # stages run together share the unconfined stage's rate
     no_phi = C.replace(spec, targets={k: v for k, v in spec.targets.items() if k != "mu_i"})
     assert C.friction_stage_rate(no_phi, s3) == pytest.approx(rate_0, rel=1e-12)
+    # 2-D: every stage at the unconfined stage's rate (the 2-D granite's confined stage read
+    # 2.7 % lower at 1.87 x)
+    flat = C.replace(spec, dim=2, ucs_size=(0.1, 0.2), d_mean=0.005)
+    assert C.friction_stage_rate(flat, s3) == C.friction_stage_rate(flat, 0.0) == \
+        pytest.approx(rate_0, rel=1e-12)
