@@ -206,6 +206,18 @@ def _fitted_dt(sim, dt: float, fraction: float) -> float:
     return sim.state.dt
 
 
+def _field_steps(sim) -> dict:
+    """At the start of the timed run: the coupled fields' own stable step (the smallest
+    ``stable_dt`` [s], which sets their sub-steps per coupling) and the smallest bound they put
+    on the mechanical step (``mechanical_dt_bound`` [s]); {} without fields."""
+    if not sim.fields:
+        return {}
+    own = [f.stable_dt(sim) for f in sim.fields]
+    bounds = [f.mechanical_dt_bound(sim) for f in sim.fields if hasattr(f, "mechanical_dt_bound")]
+    return {"field_stable_dt_s": min(own),
+            "field_mechanical_dt_bound_s": min(bounds) if bounds else None}
+
+
 def bench_one(state, backend: str, steps: int | None = None, copy: bool = True,
               fields=(), fit_dt: float | None = None) -> dict:
     """Time ``Simulation.run`` of ``state`` on ``backend``; one record.
@@ -239,6 +251,7 @@ def bench_one(state, backend: str, steps: int | None = None, copy: bool = True,
     if fit_dt:
         st.dt = _fitted_dt(sim, dt0, fit_dt)
     attach = time.perf_counter() - t0
+    steps_at_start = _field_steps(sim)
     # the backend's own buffers and tables count too (numba: the threads' force buffers)
     scratch = getattr(sim.backend, "scratch_nbytes", lambda: 0)()
     # warm-up: compiles the kernels on first use; not timed
@@ -272,6 +285,7 @@ def bench_one(state, backend: str, steps: int | None = None, copy: bool = True,
         "dim": st.dim,
         "dt_s": st.dt,
         "dt_fitted": st.dt < dt0,
+        **steps_at_start,
         "n": int(n),
         "element_steps_per_s": n * steps / wall,
         "bytes_per_element": bytes_per_element + scratch / n,

@@ -211,6 +211,8 @@ def measure(family: str, n: int, backend: str = "numba", steps: int | None = Non
     if fields:  # the field's set-up is part of building the model
         rec["field_attach_s"] = b["field_attach_s"]
         rec["field_network_updates"] = b.get("field_network_updates")
+        rec["field_stable_dt_s"] = b.get("field_stable_dt_s")
+        rec["field_mechanical_dt_bound_s"] = b.get("field_mechanical_dt_bound_s")
         rec["build_s"] += b["field_attach_s"]
     return rec
 

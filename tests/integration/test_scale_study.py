@@ -111,6 +111,8 @@ def test_a_pore_block_steps_within_the_fluids_bound():
     bound = field.mechanical_dt_bound(probe)
     assert bound < solid_dt
     assert b["dt_fitted"] and b["dt_s"] == pytest.approx(0.8 * bound, rel=1e-9)
+    assert b["field_mechanical_dt_bound_s"] == pytest.approx(bound, rel=1e-9)
+    assert b["field_stable_dt_s"] == pytest.approx(field.stable_dt(probe), rel=1e-9)
     dry = bench_one(state, "numba", steps=2, fields=(lambda: PoreField(k_f=100 * WATER_KF),),
                     fit_dt=0.8)  # a compressible fluid: the solid's step stands
     assert not dry["dt_fitted"] and dry["dt_s"] == pytest.approx(solid_dt, rel=1e-12)
