@@ -1395,6 +1395,10 @@ def _scale(out, sizes, families, max_build, backend):
         e = g["build_s"]["exponent"]
         con.print(f"{fam}: build time grows as N^{e:.2f}" if e is not None else
                   f"{fam}: one size only", highlight=False)
+        for key, v in g.items():
+            if v.get("disk_exponent") is not None:
+                con.print(f"{fam}: {key} grows as N^{v['exponent']:.2f}, a plain write of its "
+                          f"bytes as N^{v['disk_exponent']:.2f}", highlight=False)
         if worst:
             con.print(f"[bold red]{fam}: faster than N log N: {', '.join(worst)}[/]")
     con.print(f"wrote scale.json, scale.csv, scale.png to {out}", highlight=False)

@@ -24,3 +24,22 @@ def test_n_log_n_is_not_flagged_and_n_to_the_1_5_is():
     power = pts([(n1, n1 ** 1.5 * 1e-6), (n2, n2 ** 1.5 * 1e-6)])
     v = verdict(power, "build_s")
     assert v["exponent"] == pytest.approx(1.5) and v["faster_than_n_log_n"] is True
+
+
+def test_a_writer_is_judged_beyond_the_machines_own_write_of_its_bytes():
+    # the checkpoint grows as N^1.25 from 1e5 to 1e6, and so does a plain write of its bytes
+    # (the page cache filling): the writer adds nothing beyond the disk, not flagged
+    n1, n2 = 1e5, 1e6
+    same = [{"n": n1, "checkpoint_s": 0.1, "checkpoint_disk_s": 0.05},
+            {"n": n2, "checkpoint_s": 0.1 * 10 ** 1.25, "checkpoint_disk_s": 0.05 * 10 ** 1.25}]
+    v = verdict(same, "checkpoint_s")
+    assert v["exponent"] == pytest.approx(1.25) and v["disk_exponent"] == pytest.approx(1.25)
+    assert v["exponent_beyond_disk"] == pytest.approx(1.0)
+    assert v["faster_than_n_log_n"] is False
+    # ... while a writer at N^1.5 on a linear disk is flagged
+    worse = [{"n": n1, "checkpoint_s": 0.1, "checkpoint_disk_s": 0.05},
+             {"n": n2, "checkpoint_s": 0.1 * 10 ** 1.5, "checkpoint_disk_s": 0.5}]
+    v = verdict(worse, "checkpoint_s")
+    assert v["exponent_beyond_disk"] == pytest.approx(1.5) and v["faster_than_n_log_n"] is True
+    # a cost without a baseline (the build) is judged on its own exponent
+    assert "disk_exponent" not in verdict(pts([(n1, 1.0), (n2, 10.0)]), "build_s")
