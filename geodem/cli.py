@@ -752,6 +752,14 @@ def _stored_recipe(mat, dim, *options):
     return structure, sp.get("friction_test") is not None, int(sp.get("packings", 1)), disc
 
 
+def _run_time_text(rec) -> str:
+    """`` (N s of runs side by side)`` where the iteration's runs, summed, took longer than
+    the iteration (--jobs above 1), else nothing."""
+    run = rec.get("run_time_s")
+    return f" ({run:.0f} s of runs side by side)" if run and run > 1.05 * rec["wall_time_s"] \
+        else ""
+
+
 def _recipe_text(spec) -> str:
     """A calibration's recipe in words (the stored-recipe line of ``geodem calibrate``)."""
     st = spec.structure
@@ -936,7 +944,7 @@ def calibrate_cmd(
         con.print(f"iteration {i}: E {m['E']:.4g} Pa ({e['E']:+.1%}), nu {m['nu']:.3f} "
                   f"({rec['nu_abs_error']:+.3f}), Cu {m['Cu']:.4g} Pa ({e['Cu']:+.1%}), "
                   f"Tu {m['Tu']:.4g} Pa ({e['Tu']:+.1%}){_phi_text(rec)}; "
-                  f"{rec['wall_time_s']:.0f} s", highlight=False)
+                  f"{rec['wall_time_s']:.0f} s{_run_time_text(rec)}", highlight=False)
 
     start_from = None  # calibrate() names a given start and the prior's itself
     if start is None:

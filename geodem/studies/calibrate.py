@@ -1455,6 +1455,7 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
     notes = []
     us, ys = [], []
     for it in range(1, int(spec.iterations) + 1):
+        t_it = time.perf_counter()
         el = dict(from_unknowns(u), **spec.structure)
         folder = out / "iterations" / f"{it:02d}"
         m = dict(over_packings(measure_fn, spec, el, folder))
@@ -1468,7 +1469,9 @@ def calibrate(spec: CalibrationSpec, out_dir, progress=None, start: dict | None 
         rec = {"iteration": it, "element": el,
                "measured": {k: m.get(k) for k in keys},
                "rel_errors": rel, "nu_abs_error": m["nu"] - tg["nu"],
-               "wall_time_s": m["wall_time_s"]}
+               # the iteration's elapsed time, and its runs' times summed (they run side by
+               # side with --jobs, so the sum is up to jobs x the elapsed)
+               "wall_time_s": time.perf_counter() - t_it, "run_time_s": m["wall_time_s"]}
         if "scatter" in m:  # several packings: their spread, and each one's numbers
             rec["scatter"] = m["scatter"]
             rec["per_packing"] = [{k: r[k] for k in KEYS} for r in m["per_packing"]]
@@ -1771,14 +1774,15 @@ def _update_calibrated(path, update) -> None:
 def _write_history_csv(path, history):
     cols = ["iteration", "score"] + [f"{k}_measured" for k in KEYS] + \
         [f"{k}_rel_error" for k in KEYS] + ["phi_measured", "kn_per_d", "ks_per_d", "xb_per_d",
-                                             "fs0_per_d2", "mu", "wall_time_s"]
+                                             "fs0_per_d2", "mu", "wall_time_s",
+                                             "run_time_s"]
     lines = [",".join(cols)]
     for r in history:
         phi = r["measured"].get("phi")
         row = [r["iteration"], r["score"]] + [r["measured"][k] for k in KEYS] + \
             [r["rel_errors"][k] for k in KEYS] + ["" if phi is None else phi] + \
             [r["element"][k] for k in ("kn_per_d", "ks_per_d", "xb_per_d", "fs0_per_d2",
-                                       "mu")] + [r["wall_time_s"]]
+                                       "mu")] + [r["wall_time_s"], r.get("run_time_s", "")]
         lines.append(",".join(f"{v:.6g}" if isinstance(v, float) else str(v) for v in row))
     Path(path).write_text("\n".join(lines) + "\n")
 

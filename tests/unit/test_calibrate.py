@@ -683,3 +683,16 @@ def test_the_ucs_test_loads_to_its_peak_in_64_wave_transits(dim, E, Cu, rho, rat
     assert C.ucs_strain_rate(spec) == pytest.approx(rate, rel=1e-12)
     assert C._ucs_workflow(spec, {})["steps"][0]["strain_rate"] == pytest.approx(rate)
     assert C.ucs_strain_rate(C.replace(spec, strain_rate=0.3)) == 0.3
+
+
+def test_an_iteration_reports_its_elapsed_time_and_its_runs_summed(tmp_path):
+    # runs side by side (--jobs) sum to more than the iteration took: both are kept apart
+    def timed(spec, el, folder):
+        return dict(synthetic(spec, el, folder), wall_time_s=100.0)  # as if 100 s of runs
+
+    seen = []
+    C.calibrate(spec(), tmp_path, measure_fn=timed, progress=lambda i, rec: seen.append(rec))
+    assert seen and all(r["run_time_s"] == 100.0 for r in seen)
+    assert all(0.0 <= r["wall_time_s"] < 10.0 for r in seen)  # elapsed: no run really ran
+    head, first = (tmp_path / "history.csv").read_text().splitlines()[:2]
+    assert head.endswith("wall_time_s,run_time_s") and first.endswith(",100")
