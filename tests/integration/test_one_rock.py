@@ -1,6 +1,7 @@
 """One rock, one answer: the calibrated library sandstone (2-D) gives the same strength in the
 UCS test, the triaxial test at sigma3 = 0, and its tensile strength in the Brazilian and the
-direct-tension tests. Integration tier: about two minutes on 2 cores."""
+direct-tension tests. Integration tier: about a minute on one core (the three-disc Brazilian
+mean: slow tier)."""
 from pathlib import Path
 
 import pytest
@@ -73,18 +74,31 @@ def test_over_five_packings_the_triaxial_at_zero_confinement_is_the_ucs_test(tmp
     assert all(abs(r - 1.0) < 0.12 for r in ratios), ratios
 
 
+def _brazilian_over_tu(tmp_path, seed):
+    code, s = run_workflow(ROOT / "workflows" / "brazilian.yaml", tmp_path / f"s{seed}",
+                           sets=[f"metadata.seed={seed}"], echo=False, progress=False)
+    assert code == 0 and s["status"] == "ok", s.get("error")
+    assert s["results"]["brazilian"]["stopped_by"] == "drop"  # it split
+    return s["tensile_strength"] / SANDSTONE["Tu"]
+
+
+def test_the_shipped_brazilian_disc_splits_near_the_lab_tensile_strength(tmp_path):
+    """The CI slice of the test below: the shipped disc (seed 0) splits within one disc's
+    measured scatter around Tu (0.75 x; seeds 0-2 read 0.75-1.30 x), far below where a disc
+    too coarse for its elements or a translating rock's disc of that size peaks (2.7-3.4 x,
+    docs/calibration.md)."""
+    assert 0.6 < _brazilian_over_tu(tmp_path, 0) < 1.4
+
+
+@pytest.mark.slow
+@pytest.mark.validation
 def test_the_brazilian_test_gives_the_lab_tensile_strength(tmp_path):
     """The shipped disc (40 elements across, split at a 10 % drop) on the three packings the
     sandstone was calibrated on: their mean within 15 % of the lab Tu. One disc splits from
     one flaw: measured 2026-12-05, 0.75, 1.30 and 0.92 x Tu on seeds 0-2 (mean 0.99); a
-    translating rock's discs of that size peaked at 2.7-3.4 x (docs/calibration.md)."""
-    ratios = []
-    for seed in range(3):
-        code, s = run_workflow(ROOT / "workflows" / "brazilian.yaml", tmp_path / f"s{seed}",
-                               sets=[f"metadata.seed={seed}"], echo=False, progress=False)
-        assert code == 0 and s["status"] == "ok", s.get("error")
-        assert s["results"]["brazilian"]["stopped_by"] == "drop"  # it split
-        ratios.append(s["tensile_strength"] / SANDSTONE["Tu"])
+    translating rock's discs of that size peaked at 2.7-3.4 x (docs/calibration.md). About
+    two minutes on one core."""
+    ratios = [_brazilian_over_tu(tmp_path, seed) for seed in range(3)]
     assert sum(ratios) / 3 == pytest.approx(1.0, abs=0.15), ratios
 
 

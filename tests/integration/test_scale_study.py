@@ -9,7 +9,7 @@ from geodem.cli import app
 
 def test_scale_study_on_tiny_models(tmp_path):
     out = tmp_path / "scale"
-    res = CliRunner().invoke(app, ["study", "scale", "-o", str(out), "--sizes", "300,900",
+    res = CliRunner().invoke(app, ["study", "scale", "-o", str(out), "--sizes", "300,600",
                                    "--families",
                                    "lattice,granular,isotropic,terrain,thermal,pore,"
                                    "pore_isotropic"])
@@ -24,10 +24,14 @@ def test_scale_study_on_tiny_models(tmp_path):
         assert 700 < p["bytes_per_element"] < 1500
         assert p["element_steps_per_s"] > 0 and p["build_s"] > 0 and p["checkpoint_s"] > 0
         assert p["checkpoint_bytes_per_element"] > 500
+        assert p["checkpoint_disk_s"] > 0 and p["vtk_disk_s"] > 0  # the disk's baseline
     lattice = [p for p in r["points"] if p["family"] == "lattice"]
     granular = [p for p in r["points"] if p["family"] == "granular"]
     assert [p["n"] for p in lattice] == [p["n"] for p in granular]  # the same block, cut
     assert set(r["growth"]) == families
+    for g in r["growth"].values():  # the writers are judged beyond a plain write of their bytes
+        assert "exponent_beyond_disk" in g["checkpoint_s"] and "disk_exponent" in g["vtk_frame_s"]
+        assert "disk_exponent" not in g["build_s"]
     for p in r["points"]:  # a field's set-up counts in the build, and its steps are timed
         if p["family"] in ("thermal", "pore", "pore_isotropic"):
             assert 0.0 <= p["field_attach_s"] <= p["build_s"] and p["steps"] == 20

@@ -43,22 +43,6 @@ def sandstone():
     return mat
 
 
-def test_one_packing_reproduces_its_calibration(sandstone, tmp_path):
-    """Seed 0 alone (CI): the record keeps each packing's numbers (``measured_per_packing``,
-    stored by ``geodem rock sandstone --packings 3 --save`` when their mean reproduces the
-    record's)."""
-    cal = sandstone.calibrated["2d"]
-    assert cal["specimen"]["seed"] == 0
-    per = cal.get("measured_per_packing")
-    if int(cal["specimen"].get("packings") or 1) > 1 and not per:
-        pytest.fail("the 2-D sandstone record has no measured_per_packing (geodem rock "
-                    "sandstone --packings 3 --save)")
-    want = per[0] if per else cal["measured"]
-    s = ucs_mean(tmp_path, cal["specimen"]["d_mean"], 1)
-    assert s["E"] == pytest.approx(want["E"], rel=1e-6)
-    assert s["ucs"] == pytest.approx(want["Cu"], rel=1e-6)
-
-
 @pytest.mark.slow  # three packings, about 45 s
 def test_calibration_reproduces_at_its_resolution(sandstone, tmp_path):
     cal = sandstone.calibrated["2d"]
