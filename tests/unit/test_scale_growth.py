@@ -43,3 +43,17 @@ def test_a_writer_is_judged_beyond_the_machines_own_write_of_its_bytes():
     assert v["exponent_beyond_disk"] == pytest.approx(1.5) and v["faster_than_n_log_n"] is True
     # a cost without a baseline (the build) is judged on its own exponent
     assert "disk_exponent" not in verdict(pts([(n1, 1.0), (n2, 10.0)]), "build_s")
+
+
+def test_a_tiled_random_packing_is_projected_with_its_cell_jammed_once():
+    from geodem.studies.scale import projected_build
+
+    # the 10^5 random packing with the pore field (2026-12-07): 659 s, 645 of them jamming
+    # the periodic cell, which a 10^6 packing jams once as well (it took 553 s in all)
+    tiled = [{"n": 100_000, "build_s": 659.0, "packing_s": 645.0}]
+    assert projected_build(tiled, 1_000_000) == pytest.approx(645.0 + 14.0 * 10)
+    # a box jammed whole (below TILE_ABOVE) and a lattice are scaled whole, at least linearly
+    assert projected_build([{"n": 8_000, "build_s": 176.0, "packing_s": 170.0}], 16_000) == \
+        pytest.approx(352.0)
+    steep = [{"n": 1e4, "build_s": 1.0}, {"n": 1e5, "build_s": 100.0}]
+    assert projected_build(steep, 1e6) == pytest.approx(10_000.0)
