@@ -82,33 +82,24 @@ def test_ucs_reproduces_the_first_packing_of_the_calibration(ucs_run):
     assert s["ucs"] == pytest.approx(want["Cu"], rel=1e-6)
 
 
-def test_ucs_resume_is_bit_identical(ucs_run, tmp_path):
-    """Stopped mid-loading and resumed: same samples, same results, same final state."""
-    _, full = ucs_run
-    out = tmp_path / "res"
-    r1 = CliRunner().invoke(app, ["run", str(UCS), "-o", str(out), "--no-progress",
-                                  "--stop-after-steps", "8000"])
-    assert r1.exit_code == 0, r1.output
-    r2 = CliRunner().invoke(app, ["run", str(UCS), "-o", str(out), "--no-progress", "--resume"])
-    assert r2.exit_code == 0, r2.output
-    a = json.loads((out / "summary.json").read_text())
-    b = json.loads((full / "summary.json").read_text())
-    assert a["state_sha256"] == b["state_sha256"]
-    for k in ("E", "nu", "ucs", "peak_strain", "cracks_tensile", "cracks_shear"):
-        assert a[k] == b[k], k
-    assert (out / "uniaxial_curve.csv").read_text() == (full / "uniaxial_curve.csv").read_text()
-
-
-def test_a_signal_that_lands_on_a_sample_keeps_the_sample(ucs_run, tmp_path, monkeypatch):
-    """SIGTERM arriving in the chunk of steps that reaches a sample of the curve: the sample is
-    recorded before the checkpoint, so the resumed run has every sample and the same E, nu and
-    UCS (the checkpoint used to be taken first, and the resumed curve lacked that row)."""
+def test_ucs_stopped_signalled_and_resumed_is_bit_identical(ucs_run, tmp_path, monkeypatch):
+    """One run interrupted twice, each time resumed: first stopped mid-loading
+    (``--stop-after-steps``), then, resumed, a SIGTERM arriving in the chunk of steps that
+    reaches a sample of the curve. The sample is recorded before the checkpoint (the
+    checkpoint used to be taken first, and the resumed curve lacked that row), and the run
+    resumed again ends with the same samples, results and final state as the run never
+    interrupted (the two interruptions share one run's worth of steps)."""
     import signal
 
     from geodem.core.engine import Simulation
     from geodem.workflow import runner as wr
 
     _, full = ucs_run
+    out = tmp_path / "res"
+    r1 = CliRunner().invoke(app, ["run", str(UCS), "-o", str(out), "--no-progress",
+                                  "--stop-after-steps", "8000"])
+    assert r1.exit_code == 0, r1.output
+
     seen = {"n": 0}
     advance_to, sim_run = wr.Runner.advance_to, Simulation.run
 
@@ -126,18 +117,18 @@ def test_a_signal_that_lands_on_a_sample_keeps_the_sample(ucs_run, tmp_path, mon
 
     monkeypatch.setattr(wr.Runner, "advance_to", spy_advance_to)
     monkeypatch.setattr(Simulation, "run", signal_on_sample)
-    out = tmp_path / "sig"
-    r1 = CliRunner().invoke(app, ["run", str(UCS), "-o", str(out), "--no-progress"])
-    assert r1.exit_code == 143, r1.output
+    r2 = CliRunner().invoke(app, ["run", str(UCS), "-o", str(out), "--no-progress", "--resume"])
+    assert r2.exit_code == 143, r2.output
     monkeypatch.undo()
+    assert seen["sent"] > 8000
     rows = (out / "uniaxial_curve.csv").read_text().splitlines()
     assert rows[-1].split(",")[0] == str(seen["sent"])  # the sample at the signal's step
-    r2 = CliRunner().invoke(app, ["run", str(UCS), "-o", str(out), "--no-progress", "--resume"])
-    assert r2.exit_code == 0, r2.output
+    r3 = CliRunner().invoke(app, ["run", str(UCS), "-o", str(out), "--no-progress", "--resume"])
+    assert r3.exit_code == 0, r3.output
     a = json.loads((out / "summary.json").read_text())
     b = json.loads((full / "summary.json").read_text())
     assert a["state_sha256"] == b["state_sha256"]
-    for k in ("E", "nu", "ucs", "peak_strain"):
+    for k in ("E", "nu", "ucs", "peak_strain", "cracks_tensile", "cracks_shear"):
         assert a[k] == b[k], k
     assert (out / "uniaxial_curve.csv").read_text() == (full / "uniaxial_curve.csv").read_text()
 
