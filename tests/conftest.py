@@ -25,6 +25,22 @@ def pytest_configure(config):
         backends.BACKENDS["numba"] = SeparateMemory
 
 
+#: the longest test files (seconds of the CI tier, 2026-12-08, two workers): run first, so
+#: that with ``--dist loadfile`` (each file whole to the next free worker, in collection order)
+#: no long file starts last while the other worker has nothing left to do
+LONGEST_FIRST = ("tests/integration/test_rock_structure.py", "tests/integration/test_ucs.py",
+                 "tests/integration/test_one_rock.py", "tests/integration/test_separate_memory.py",
+                 "tests/integration/test_scale_study.py", "tests/integration/test_thread_count.py",
+                 "tests/integration/test_calibration_jobs.py", "tests/unit/test_backends.py",
+                 "tests/integration/test_slope_stability.py", "tests/integration/test_pore_flow.py")
+
+
+def pytest_collection_modifyitems(session, config, items):
+    rank = {f: k for k, f in enumerate(LONGEST_FIRST)}
+    order = {id(it): k for k, it in enumerate(items)}
+    items.sort(key=lambda it: (rank.get(it.nodeid.split("::")[0], len(rank)), order[id(it)]))
+
+
 def make_specimen(n=300, dim=3, seed=1, xb=5e-4, fs0=60.0, mu=0.4, vscale=1.0):
     """A small bonded lattice with scattered element parameters and random velocities.
 
