@@ -674,6 +674,9 @@ SHAPE_SCALE = (MAX_S_STEP, math.log(3.0), math.log(1.12))
 #: prior's 0.15 toward the 0.05 its 28 deg needs)
 MU_STEP_FAR = math.log(1.5)
 PHI_FAR = 4.0
+# (3-D turning elements take it whenever the angle is out of tolerance: their angle moves 7.4
+# deg per unit of ln mu, so a 12 % step moves it 0.8 deg, and the 3-D sandstone read +2.6 and
+# +2.5 deg over two such steps before the stuck rule below let mu go)
 
 
 def _phi_stuck(phi, target, tol=TOLERANCES["phi"]) -> bool:
@@ -806,12 +809,16 @@ def _bracket_mu(U, phi, x_mu):
 
 
 def _solve_paired(J, rhs, x_last, bounds, scale):
-    """Step ``x`` solving ``J dx = rhs`` within one ``scale`` and the bounds. A variable whose
-    step is cut (to one scale or to a bound) is held there, and the other rows are solved
-    again without its paired row (row i goes with variable i: nu with ks/kn, Cu/Tu with
-    rho_s, phi with mu), until no step is cut: the other variables must not compensate a
-    step that was not taken. Returns ``(x_new, at_bound)`` where ``at_bound[i]`` says the
-    variable sits at a bound and still points past it (its target is out of reach)."""
+    """Step ``x`` solving ``J dx = rhs`` within one ``scale`` and the bounds. The variable
+    whose step overshoots most (in units of its scale, or past a bound) is held at its cut
+    step, and the other rows are solved again without its paired row (row i goes with
+    variable i: nu with ks/kn, Cu/Tu with rho_s, phi with mu), one variable at a time until no
+    step is cut: the other variables must not compensate a step that was not taken, nor be
+    held at a cut that only the held one's overshoot drove (the 3-D sandstone's angle plane,
+    its mu slope at the floor, asked mu -13 and rho_s +1.3 in ln together; both were cut, and
+    rho_s went up by a factor 3 where mu held alone leaves it +0.08). Returns ``(x_new,
+    at_bound)`` where ``at_bound[i]`` says the variable sits at a bound and still points past
+    it (its target is out of reach)."""
     n = len(rhs)
     scale = np.asarray(scale, float)
     held = np.zeros(n, bool)
@@ -827,19 +834,22 @@ def _solve_paired(J, rhs, x_last, bounds, scale):
             diag = np.diag(Jf)
             d_free = r / np.where(np.abs(diag) > 1e-12, diag, 1.0)
         d[free] = d_free
-        cut = False
+        worst, worst_over, worst_x = -1, 0.0, 0.0
         for i in np.flatnonzero(free):
             lo, hi = bounds[i]
-            step = float(np.clip(d[i], -scale[i], scale[i]))
-            x_i = x_last[i] + step
-            if x_i < lo or x_i > hi:
-                at_bound[i] = abs(x_last[i] - (lo if x_i < lo else hi)) < 1e-9
-                x_i = float(np.clip(x_i, lo, hi))
-            if abs(x_i - (x_last[i] + d[i])) > 1e-12:
-                d[i] = x_i - x_last[i]
-                held[i] = True
-                cut = True
-        if not cut or held.all():
+            x_i = float(np.clip(x_last[i] + np.clip(d[i], -scale[i], scale[i]), lo, hi))
+            over = abs(x_last[i] + d[i] - x_i) / scale[i]
+            if over > 1e-12 and over > worst_over:
+                worst, worst_over, worst_x = i, over, x_i
+        if worst < 0:
+            break
+        lo, hi = bounds[worst]
+        wanted = x_last[worst] + d[worst]
+        if wanted < lo or wanted > hi:
+            at_bound[worst] = abs(x_last[worst] - (lo if wanted < lo else hi)) < 1e-9
+        d[worst] = worst_x - x_last[worst]
+        held[worst] = True
+        if held.all():
             break
     return x_last + d, at_bound
 
@@ -907,7 +917,8 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=Fal
     x_new = X[-1].copy()
     scale = list(SHAPE_SCALE)
     if phi is not None and (abs(y_target[4] - phi[0]) > PHI_FAR
-                            or _phi_stuck(Y[:, 4], y_target[4])):
+                            or _phi_stuck(Y[:, 4], y_target[4])
+                            or (turning_3d and abs(y_target[4] - phi[0]) > TOLERANCES["phi"])):
         scale[2] = MU_STEP_FAR
     x_new[:n], at_bound = _solve_paired(J, np.array(rhs), X[-1, :n], bounds[:n], scale[:n])
     other = "Tu" if prefer == "Cu" else "Cu"  # the strength that follows from the ratio

@@ -651,6 +651,25 @@ def test_a_3d_turning_rock_holds_its_angle_by_mu_while_rho_s_holds_cu_over_tu(tm
     assert abs(out["abs_errors"]["nu"]) <= 0.03
 
 
+@pytest.mark.parametrize("dim, least_ratio", [(3, 1.0 / 1.5), (2, 1.0 / 1.12)])
+def test_a_3d_turning_angle_out_of_tolerance_takes_the_long_mu_step(dim, least_ratio):
+    """E, nu, Cu and Tu met, the angle 2.6 deg high (inside PHI_FAR, first reading): 3-D
+    turning elements (7.4 deg per unit of ln mu) step mu toward exp(-2.6 / 7.4) = 0.70 of it,
+    within a factor 1.5; 2-D ones keep the 12 % step."""
+    rot = {"packing": "isotropic", "rotation": True, "bond_moment": 100.0,
+           "rolling_friction": 0.0, "rolling_stiffness": 8.0}
+    y_t = np.array([math.log(15e9), 0.2, math.log(4e6), math.log(75e6), 35.0])
+    u = np.array([math.log(1e11), 0.31, math.log(1e4), math.log(9.96), math.log(0.177)])
+    y = y_t.copy()
+    y[4] = 37.6
+    new, _ = C.next_unknowns([u], [y], y_t, dim, "Cu", True, rot)
+    ratio = math.exp(new[4] - u[4])
+    assert ratio == pytest.approx(least_ratio, rel=1e-6) if dim == 2 else (
+        least_ratio - 1e-9 <= ratio <= 0.75)
+    # Cu / Tu met: rho_s moves only to hold Cu's small rise with mu
+    assert abs(new[3] - u[3]) < 0.05
+
+
 def test_the_3d_turning_angle_plane_reads_both_slopes():
     # three samples of phi = 30 + 18 ln rho_s + 6 ln mu: the plane through the latest one
     # recovers both slopes (the ridge toward the prior moves them little)
