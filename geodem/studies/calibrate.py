@@ -699,8 +699,8 @@ def local_plane(X, y, prior, weights, scale=None):
     first ``X.shape[1]`` shape variables) and ``y``, its slopes ``g`` fitted by weighted least
     squares over the other samples with a ridge pulling them toward ``prior`` (:data:`RIDGE`,
     in units of :data:`SHAPE_SCALE`, or of ``scale``). Returns ``(y_last, g)``. (The plane
-    goes through the latest measurement: a free intercept let a far, curved sample hold the model's value 0.04
-    off the measured nu, and the next steps shrank to 0.008 in ks / kn.)"""
+    goes through the latest measurement: a free intercept let a far, curved sample hold the
+    model's value 0.04 off the measured nu, and the next steps shrank to 0.008 in ks / kn.)"""
     X = np.asarray(X, float)
     scale = np.asarray(SHAPE_SCALE[:X.shape[1]] if scale is None else scale, float)
     X = X / scale
@@ -866,10 +866,10 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=Fal
     (:func:`_phi_line`: it is measured near the manifold where the other four are met, on
     which mu is the one free variable), or for 3-D turning elements by a plane in ln rho_s
     and ln mu (:func:`_phi_plane`: their angle follows the bonds' shear strength). ``x``
-    solves the linear system ``nu(x) = nu_t``, ``(f_C - f_T)(x) = ln(Cu_t / Tu_t)`` and, with ``friction`` and a
-    measured phi, ``phi(x) = phi_t`` (nu depends on rho_s too: pre-peak cracking of a
-    strong-shear, weak-tension rock widens it; Cu on mu), within one step of the latest
-    sample and the bounds (:func:`_solve_paired`); without a measured phi ``mu`` stays. Then
+    solves the linear system ``nu(x) = nu_t``, ``(f_C - f_T)(x) = ln(Cu_t / Tu_t)`` and, with
+    ``friction`` and a measured phi, ``phi(x) = phi_t`` (nu depends on rho_s too: pre-peak
+    cracking of a strong-shear, weak-tension rock widens it; Cu on mu), within one step of the
+    latest sample and the bounds (:func:`_solve_paired`); without a measured phi ``mu`` stays. Then
     the levels follow exactly: ``ln kn = ln E_t - f_E(x)``, ``ln F_t = ln S_t - f_S(x)`` (S the
     preferred strength). A target is flagged unreachable (``nu``, the strength not preferred,
     ``phi``) when its variable sits at a bound and the model still points past it, or, for Cu
