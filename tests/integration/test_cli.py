@@ -329,7 +329,8 @@ def test_calibrate_starts_from_a_stored_record(tmp_path):
 
 def test_calibrate_starts_from_the_nearest_library_rock_of_its_recipe(tmp_path, monkeypatch):
     """``geodem calibrate marble`` (the stored 2-D recipe: turning elements, BETA 2) starts
-    from the step off the granite's record (the nearest other rock of that recipe), says so,
+    from the step off the limestone's record (the nearest other rock of that recipe: nu 0.25
+    both, Cu / Tu 13.3 against the granite's 20), says so,
     and ``--start prior`` takes the prior rates; the calibration itself is not run here."""
     from geodem.studies import calibrate as C
 
@@ -341,9 +342,9 @@ def test_calibrate_starts_from_the_nearest_library_rock_of_its_recipe(tmp_path, 
 
     monkeypatch.setattr(C, "calibrate", capture)
     res = invoke("calibrate", "marble", "-o", str(tmp_path / "c"))
-    assert "starting from the library's granite (2-D record" in flat(res.output)
+    assert "starting from the library's limestone (2-D record" in flat(res.output)
     spec, start, start_from = seen[-1]
-    assert start_from == "library granite"
+    assert start_from == "library limestone"
     assert start == C.library_start(spec)[0]
     res = invoke("calibrate", "marble", "--start", "prior", "-o", str(tmp_path / "d"))
     assert "starting from" not in flat(res.output)
