@@ -674,9 +674,6 @@ SHAPE_SCALE = (MAX_S_STEP, math.log(3.0), math.log(1.12))
 #: prior's 0.15 toward the 0.05 its 28 deg needs)
 MU_STEP_FAR = math.log(1.5)
 PHI_FAR = 4.0
-# (3-D turning elements take it whenever the angle is out of tolerance: their angle moves 7.4
-# deg per unit of ln mu, so a 12 % step moves it 0.8 deg, and the 3-D sandstone read +2.6 and
-# +2.5 deg over two such steps before the stuck rule below let mu go)
 
 
 def _phi_stuck(phi, target, tol=TOLERANCES["phi"]) -> bool:
@@ -916,9 +913,12 @@ def next_unknowns(history_u, history_y, y_target, dim, prefer="Cu", friction=Fal
     J = np.array(rows)[:, :n]
     x_new = X[-1].copy()
     scale = list(SHAPE_SCALE)
-    if phi is not None and (abs(y_target[4] - phi[0]) > PHI_FAR
-                            or _phi_stuck(Y[:, 4], y_target[4])
-                            or (turning_3d and abs(y_target[4] - phi[0]) > TOLERANCES["phi"])):
+    # the long step in mu: phi far off, or off twice on one side, or off at all on 3-D turning
+    # elements (7.4 deg per unit of ln mu: a 12 % step moves their angle 0.8 deg; the 3-D
+    # sandstone read +2.6 and +2.5 deg over two such steps)
+    gap = abs(y_target[4] - phi[0]) if phi is not None else 0.0
+    if phi is not None and (gap > PHI_FAR or _phi_stuck(Y[:, 4], y_target[4])
+                            or (turning_3d and gap > TOLERANCES["phi"])):
         scale[2] = MU_STEP_FAR
     x_new[:n], at_bound = _solve_paired(J, np.array(rhs), X[-1, :n], bounds[:n], scale[:n])
     other = "Tu" if prefer == "Cu" else "Cu"  # the strength that follows from the ratio
